@@ -1,0 +1,37 @@
+# Two commands: `make demo` and `make test`. Each creates .venv and installs the project if needed.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test bench bench-graph bench-sim bench-estimator bench-loop clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/launch demo.yaml
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+clean:
+	rm -rf $(VENV) .pytest_cache .hypothesis
+
+# Benchmarks print ratios measured side by side in one run; results go to docs/performance.md.
+bench: bench-graph bench-sim bench-estimator bench-loop
+
+bench-graph: $(STAMP)
+	$(BIN)/python bench/bench_graph.py
+
+bench-sim: $(STAMP)
+	$(BIN)/python bench/bench_sim.py
+
+bench-estimator: $(STAMP)
+	$(BIN)/python bench/bench_estimator.py
+
+bench-loop: $(STAMP)
+	$(BIN)/python bench/bench_loop.py

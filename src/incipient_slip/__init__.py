@@ -1,0 +1,1 @@
+"""Incipient slip detection by vibration injection into a soft sensor (reference implementation)."""

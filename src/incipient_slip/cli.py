@@ -1,0 +1,42 @@
+"""The `slip` command: one entry point whose sub-commands live beside the code they drive.
+
+Each area module exposes `register(subparsers)`; this file only lists them, so adding a
+command never means editing another area's code.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# (module, what it adds) -- each module defines register(subparsers) -> None
+COMMAND_MODULES = (
+    "incipient_slip.nodes.tools",       # topic list|echo|hz, bag record|play|info
+    "incipient_slip.sim.cli",           # dataset, sim calibrate
+    "incipient_slip.models.cli",        # train, evaluate, reproduce estimation, model regen
+    "incipient_slip.control_cli",       # reproduce stabilization
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="slip",
+        description="Incipient slip detection by vibration injection: tools for the node graph, "
+        "the simulated rig, the slip models and the paper's experiments.",
+    )
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for module_name in COMMAND_MODULES:
+        importlib.import_module(module_name).register(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
