@@ -1,7 +1,8 @@
 """The `slip` command: one entry point whose sub-commands live beside the code they drive.
 
-Each area module exposes `register(subparsers)`; this file only lists them, so adding a
-command never means editing another area's code.
+Each area module exposes `register(subparsers, reproduce)`: `subparsers` takes top-level
+commands, `reproduce` takes the experiments of `slip reproduce NAME`. This file only lists the
+modules, so adding a command never means editing another area's code.
 """
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import argparse
 import importlib
 import sys
 
-# (module, what it adds) -- each module defines register(subparsers) -> None
+# each module defines register(subparsers, reproduce) -> None
 COMMAND_MODULES = (
     "incipient_slip.nodes.tools",       # topic list|echo|hz, bag record|play|info
     "incipient_slip.sim.cli",           # dataset, sim calibrate
@@ -25,8 +26,11 @@ def build_parser() -> argparse.ArgumentParser:
         "the simulated rig, the slip models and the paper's experiments.",
     )
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    reproduce = subparsers.add_parser(
+        "reproduce", help="run one of the paper's experiments end to end and write docs/"
+    ).add_subparsers(dest="experiment", metavar="EXPERIMENT", required=True)
     for module_name in COMMAND_MODULES:
-        importlib.import_module(module_name).register(subparsers)
+        importlib.import_module(module_name).register(subparsers, reproduce)
     return parser
 
 
