@@ -1,0 +1,129 @@
+"""Reading a data set written by `slip dataset` (format in docs/design.md).
+
+A data set is a directory with `meta.json` and one `series_NNNNN.npz` per series. Nothing here
+writes data sets; the simulator (or a recorder conversion) does.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+DATASET_FORMAT = "incipient-slip-dataset"
+DATASET_VERSION = 1
+
+
+class DatasetError(ValueError):
+    """A data set directory or series file is missing or malformed; the message names it."""
+
+
+@dataclass(frozen=True)
+class Series:
+    """One series (one pass of the actuator over 23 mm) loaded from `series_NNNNN.npz`."""
+
+    index: int                    # NNNNN from the file name: the identity used for splits
+    material: str
+    injection: bool
+    pac_counts: np.ndarray        # int16 (n_pac,)
+    electrode_counts: np.ndarray  # uint16 (n_slow, 19)
+    mocap_t_s: np.ndarray
+    mocap_y_mm: np.ndarray
+    period_end_s: np.ndarray
+    normal_force_kpa: np.ndarray
+    tangential_force_n: np.ndarray
+    stick_area_ratio: np.ndarray
+    load_ratio_stick: np.ndarray
+    gross_slip: np.ndarray
+
+
+_REQUIRED_KEYS = ("pac_counts", "electrode_counts", "mocap_t_s", "mocap_y_mm", "period_end_s",
+                  "normal_force_kpa", "tangential_force_n", "material")
+
+
+def read_meta(data_dir: str | Path) -> dict:
+    """Return the parsed `meta.json` of a data set, checked for format and version."""
+    path = Path(data_dir) / "meta.json"
+    if not Path(data_dir).is_dir():
+        raise DatasetError(f"data set directory {data_dir} does not exist")
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing; a data set directory holds meta.json and "
+                           "series_NNNNN.npz files (written by `slip dataset`)")
+    try:
+        meta = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise DatasetError(f"{path}: not valid JSON ({exc})") from None
+    if meta.get("format") != DATASET_FORMAT:
+        raise DatasetError(f"{path}: format is {meta.get('format')!r}, expected {DATASET_FORMAT!r}")
+    if meta.get("version") != DATASET_VERSION:
+        raise DatasetError(f"{path}: version {meta.get('version')!r} is not supported "
+                           f"(expected {DATASET_VERSION})")
+    return meta
+
+
+def series_paths(data_dir: str | Path) -> list[Path]:
+    """Return the series files of a data set, sorted by series index."""
+    paths = sorted(Path(data_dir).glob("series_*.npz"))
+    if not paths:
+        raise DatasetError(f"{data_dir}: no series_NNNNN.npz files")
+    return paths
+
+
+def series_index(path: Path) -> int:
+    """Return NNNNN of `series_NNNNN.npz`."""
+    try:
+        return int(path.stem.split("_", 1)[1])
+    except (IndexError, ValueError):
+        raise DatasetError(f"{path}: file name is not series_NNNNN.npz") from None
+
+
+def load_series(path: str | Path) -> Series:
+    """Return one series; a missing key is an error naming the file and key."""
+    path = Path(path)
+    try:
+        data = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"{path}: cannot read ({exc})") from None
+    with data:
+        missing = [k for k in _REQUIRED_KEYS if k not in data.files]
+        if missing:
+            raise DatasetError(f"{path}: missing keys {missing}")
+        n_periods = len(data["period_end_s"])
+
+        def opt(key, fill):
+            return np.asarray(data[key]) if key in data.files else np.full(n_periods, fill)
+
+        return Series(
+            index=series_index(path),
+            material=str(data["material"]),
+            injection=bool(data["injection"]) if "injection" in data.files else True,
+            pac_counts=np.asarray(data["pac_counts"]),
+            electrode_counts=np.asarray(data["electrode_counts"]),
+            mocap_t_s=np.asarray(data["mocap_t_s"], dtype=np.float64),
+            mocap_y_mm=np.asarray(data["mocap_y_mm"], dtype=np.float64),
+            period_end_s=np.asarray(data["period_end_s"], dtype=np.float64),
+            normal_force_kpa=np.asarray(data["normal_force_kpa"], dtype=np.float64),
+            tangential_force_n=np.asarray(data["tangential_force_n"], dtype=np.float64),
+            stick_area_ratio=opt("stick_area_ratio", np.nan).astype(np.float64),
+            load_ratio_stick=opt("load_ratio_stick", np.nan).astype(np.float64),
+            gross_slip=opt("gross_slip", False).astype(bool),
+        )
+
+
+def dataset_hash(data_dir: str | Path) -> str:
+    """Return a short content hash of a data set (meta.json + file names and sizes + heads).
+
+    Cheap on purpose (a paper-scale set is gigabytes): it hashes meta.json, each series file's
+    name and size and its first 64 KiB, enough to tell two generated sets apart.
+    """
+    h = hashlib.sha256()
+    data_dir = Path(data_dir)
+    h.update((data_dir / "meta.json").read_bytes())
+    for p in series_paths(data_dir):
+        h.update(p.name.encode())
+        h.update(str(p.stat().st_size).encode())
+        with open(p, "rb") as f:
+            h.update(f.read(65536))
+    return h.hexdigest()[:16]
