@@ -1,0 +1,27 @@
+"""Where the repository's data directories are: launch files, scenes and shipped models.
+
+The project is installed editable, so the repository root is two levels above this package.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def repo_root() -> Path:
+    """Return the repository root (the directory holding pyproject.toml)."""
+    return Path(__file__).resolve().parents[2]
+
+
+def launch_dir() -> Path:
+    """Return the directory of launch YAML files."""
+    return repo_root() / "launch"
+
+
+def scenes_dir() -> Path:
+    """Return the directory of simulator scene YAML files."""
+    return repo_root() / "scenes"
+
+
+def model_dir() -> Path:
+    """Return the directory of shipped model files."""
+    return repo_root() / "models"

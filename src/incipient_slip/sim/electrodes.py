@@ -1,0 +1,33 @@
+"""The 19 BioTac electrodes: impedance follows local skin compression over each electrode.
+
+Local compression is the Hertz load spread over the fluid layer, p_e = P (w^2 / (w^2 + r_e^2))^(3/2)
+with w^2 = a^2 + h^2, centred on the contact point shifted by the skin's tangential displacement;
+impedance Z = Z0 (1 + kappa p_e); counts = 4095 / (1 + Z / 10 kOhm) (BioTac formula inverted).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def electrode_counts_mean(p: dict, normal_force_kpa: float, a_mm: float, shift_mm: float) -> np.ndarray:
+    """Return the noise-free counts (19,) for F_N (kPa), contact radius a and tangential shift."""
+    pos = np.asarray(p["positions_mm"], float)
+    c = np.asarray(p["contact_center_mm"], float) + np.array([p["displacement_coupling"] * shift_mm, 0.0, 0.0])
+    r2 = np.sum((pos - c) ** 2, axis=1)
+    w2 = a_mm**2 + p["fluid_depth_mm"] ** 2
+    local_kpa = normal_force_kpa * (w2 / (w2 + r2)) ** 1.5
+    z_kohm = p["baseline_kohm"] * (1.0 + p["kpa_sensitivity"] * local_kpa)
+    return 4095.0 / (1.0 + z_kohm / 10.0)
+
+
+class Electrodes:
+    """Electrode sampler with a slow per-electrode baseline drift (random walk)."""
+
+    def __init__(self, p: dict):
+        self.p = p
+        self.drift = np.zeros(19)
+
+    def __call__(self, rng: np.random.Generator, n: int, normal_force_kpa: float, a_mm: float, shift_mm: float) -> np.ndarray:
+        self.drift += rng.standard_normal(19) * self.p["drift_counts_per_period"]
+        mean = electrode_counts_mean(self.p, normal_force_kpa, a_mm, shift_mm) + self.drift
+        return mean + rng.standard_normal((n, 19)) * self.p["noise_counts"]

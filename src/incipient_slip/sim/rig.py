@@ -1,0 +1,213 @@
+"""The simulated rig: one physics core stepped one 500 ms sampling period at a time.
+
+Both drivers call exactly this: the in-process data set generator (`sim.dataset`) and the
+`rig_sim` node. Usage::
+
+    rig = Rig(load_scene("paper"), material="pla", seed=7)
+    rig.set_injection(True, 0.0)                 # PZT on at I = 0 dB (scene default)
+    out = rig.step_period(normal_force_kpa=3.1)  # one period; the actuator steps at its end
+    out.pac_counts      # int16 (1100,) or None when the scene has no P_AC effect
+
+Period k spans [k T, (k+1) T) with T = 0.5 s. The actuator position is constant during the
+period and steps 23/450 mm at its end when `actuator_step` is True. Effects not listed in the
+scene are not computed and their outputs are None.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import adc, contact, partial_slip, stick_slip
+from .ambient_noise import AmbientNoise
+from .electrodes import Electrodes
+from .fingertip_modes import ModalPath
+from .injection import BandFilter, band_sos, noise_pa
+from .mocap import mocap_samples
+from .pdc import pdc_counts
+from .scene import Scene, load_scene  # noqa: F401  (re-exported)
+from .stick_slip import RailState, SimulationError
+from .temperature import temperature_counts
+from .vibrotactile import bursts_pa
+
+STREAMS = ("friction", "injection", "vibrotactile", "ambient", "electrodes", "pdc", "temperature", "mocap")
+
+
+@dataclass
+class PeriodOutput:
+    """One 500 ms period of sensor streams (raw counts) and physical truth.
+
+    Sensor arrays are None when the scene does not compute the effect behind them.
+    """
+
+    period_index: int
+    t_start_s: float
+    pac_counts: np.ndarray | None          # int16 (1100,), 0.37 Pa/count, 2200 Hz
+    electrode_counts: np.ndarray | None    # uint16 (50, 19), 100 Hz
+    pdc_counts: np.ndarray | None          # uint16 (50,)
+    tac_counts: np.ndarray | None          # uint16 (50,)
+    tdc_counts: np.ndarray | None          # uint16 (50,)
+    mocap_t_s: np.ndarray | None           # float64 (60,), absolute series time
+    mocap_y_mm: np.ndarray | None          # float64 (60,), measured travel
+    normal_force_kpa: float                # F_N during the period
+    tangential_force_n: float              # spring force F_T at the end of the period
+    actuator_mm: float                     # actuator position during the period
+    object_y_mm: float                     # true travel at the end of the period
+    stick_area_ratio: float                # true (c/a)^2 at the end (0 while sliding)
+    load_ratio_stick: float                # 1 - Q / (mu_s F_N) at the end (0 while sliding)
+    gross_slip: bool                       # the object slid during this period
+    pzt_on: bool
+    pzt_intensity_db: float
+
+
+def series_seed(dataset_seed: int, series_index: int) -> int:
+    """Return a series' own seed (int63) derived from (dataset seed, series index) by SeedSequence."""
+    state = np.random.SeedSequence(int(dataset_seed), spawn_key=(int(series_index),)).generate_state(2, np.uint32)
+    return int((int(state[0]) << 31) ^ int(state[1])) & 0x7FFF_FFFF_FFFF_FFFF
+
+
+class Rig:
+    """A simulated rig for one material and seed; `step_period` advances one sampling period."""
+
+    def __init__(self, scene: Scene, material: str, seed: int):
+        if material not in scene.params["materials"]:
+            raise ValueError(f"unknown material {material!r} (known: {', '.join(scene.params['materials'])})")
+        self.scene, self.material, self.seed = scene, material, int(seed)
+        p = scene.params
+        self.p = p
+        tm = p["timing"]
+        self.fs = float(tm["pac_rate_hz"])
+        self.period_s = float(tm["period_s"])
+        self.n_pac = int(round(self.fs * self.period_s))
+        self.n_slow = int(round(tm["slow_rate_hz"] * self.period_s))
+        self.n_mocap = int(round(tm["mocap_rate_hz"] * self.period_s))
+        children = np.random.SeedSequence(self.seed).spawn(len(STREAMS))
+        self.rng = {name: np.random.default_rng(ss) for name, ss in zip(STREAMS, children)}
+        mat = p["materials"][material]
+        jitter = 1.0 + p["stick_slip"]["mu_series_jitter"] * self.rng["friction"].standard_normal()
+        self.mu_s, self.mu_k = mat["mu_static"] * jitter, mat["mu_kinetic"] * jitter
+        self.roughness = mat["roughness"]
+        c = p["contact"]
+        self.radius_mm = contact.effective_radius_mm(c)
+        self.e_star, self.g_star = contact.effective_moduli_mpa(c, mat["object_modulus_mpa"])
+        # soft objects add a little damping to the modes (assumption: proportional to skin/object compliance ratio)
+        self.material_damping = 0.01 * min(1.0, c["skin_modulus_mpa"] / mat["object_modulus_mpa"])
+        ss = p["stick_slip"]
+        self.k, self.mass, self.zeta = ss["spring_n_per_mm"], ss["object_mass_kg"], ss["rail_damping_ratio"]
+        self.omega = math.sqrt(1000.0 * self.k / self.mass)
+        self.step_mm = ss["actuator_travel_mm"] / ss["actuator_steps"]
+        self.rail = RailState()
+        self.k_period = 0
+        self.prev_sar = 1.0
+        has = scene.has
+        self.has_pac = has("injection") or has("vibrotactile") or has("ambient_noise")
+        self.band = BandFilter(band_sos(p["injection"], self.fs)) if has("injection") else None
+        self.modes = ModalPath(p["fingertip_modes"], self.fs) if has("fingertip_modes") else None
+        self.ambient = AmbientNoise(p["ambient_noise"], self.fs) if has("ambient_noise") else None
+        self.electrodes = Electrodes(p["electrodes"]) if has("electrodes") else None
+        self.pzt_on = has("injection")
+        self.pzt_db = scene.injection_db
+
+    def set_injection(self, on: bool, intensity_db: float | None = None) -> None:
+        """Switch the PZT noise on or off and set its intensity I (dB); needs the 'injection' effect."""
+        if on and not self.scene.has("injection"):
+            raise ValueError(f"scene {self.scene.name!r} has no 'injection' effect; cannot switch the PZT on")
+        if intensity_db is not None:
+            if not math.isfinite(intensity_db):
+                raise ValueError(f"PZT intensity must be finite, got {intensity_db}")
+            self.pzt_db = float(intensity_db)
+        self.pzt_on = bool(on)
+
+    def step_period(self, normal_force_kpa: float, actuator_step: bool = True) -> PeriodOutput:
+        """Return the sensor streams and truth of the next 500 ms period at normal force F_N (kPa)."""
+        k_step = self.k_period
+        fn_kpa = float(normal_force_kpa)
+        if not math.isfinite(fn_kpa) or fn_kpa < 0.0:
+            raise ValueError(f"step {k_step}: normal_force_kpa must be finite and >= 0, got {normal_force_kpa}")
+        p = self.p
+        fn_n = fn_kpa * p["contact"]["newton_per_kpa"]
+        in_contact = fn_n >= p["contact"]["min_contact_force_n"]
+        a_mm = contact.contact_radius_mm(fn_n, self.radius_mm, self.e_star) if in_contact else 0.0
+        out_fn = fn_n if in_contact else 0.0
+        jit = 1.0 + p["stick_slip"]["mu_period_jitter"] * self.rng["friction"].standard_normal()
+        mu_s, mu_k = self.mu_s * jit, self.mu_k * jit
+        mu_fn = mu_s * out_fn
+        dmax = partial_slip.max_displacement_mm(mu_fn, self.g_star, a_mm)
+
+        sar, s_ratio, q, gross, slide_s, slide_t0 = 1.0, 1.0, 0.0, False, 0.0, 0.0
+        if self.scene.has("stick_slip"):
+            ss = p["stick_slip"]
+            stick_slip.step_rail(self.rail, normal_force_n=out_fn, mu_s=mu_s, mu_k=mu_k, dmax=dmax, k=self.k,
+                                 mass_kg=self.mass, zeta=self.zeta, period_s=self.period_s,
+                                 max_events=int(ss["max_slide_events"]), step=k_step)
+            slides = [sg for sg in self.rail.segments if sg.sliding]
+            gross = bool(slides)
+            if slides:
+                slide_t0 = slides[0].t0
+                slide_s = sum(sg.t1 - sg.t0 for sg in slides)
+            q = self.k * (self.rail.actuator_mm - self.rail.y_mm)
+            if self.rail.sliding or not in_contact:
+                s_ratio, sar = 0.0, 0.0
+            else:
+                s_ratio = float(partial_slip.load_ratio_stick(q, mu_fn))
+                sar = float(partial_slip.stick_area_ratio(s_ratio))
+        shift = float(partial_slip.displacement_mm(q, mu_fn, dmax)) if mu_fn > 0 else 0.0
+        t0 = k_step * self.period_s
+
+        pac = None
+        if self.has_pac:
+            n = self.n_pac
+            x = np.zeros(n)
+            if self.band is not None:
+                drive = noise_pa(self.rng["injection"], n, self.pzt_db, p["injection"]["pa_per_unit"])
+                filtered = self.band(drive)
+                if self.pzt_on:
+                    x += filtered
+            if self.scene.has("vibrotactile"):
+                x += bursts_pa(self.rng["vibrotactile"], n, self.fs, p["vibrotactile"], self.prev_sar - sar,
+                               slide_s, slide_t0, self.roughness, p["injection"]["pa_per_unit"])
+            if self.modes is not None:
+                n_split = min(n, int(math.ceil((slide_t0 + slide_s) * self.fs))) if gross else 0
+                if n_split:
+                    x[:n_split] = self.modes(x[:n_split], a_mm, 0.0, self.material_damping)
+                if n_split < n:
+                    x[n_split:] = self.modes(x[n_split:], a_mm, s_ratio, self.material_damping)
+            if self.ambient is not None:
+                x += self.ambient(self.rng["ambient"], n)
+            if not np.all(np.isfinite(x)):
+                raise SimulationError(f"step {k_step}: non-finite P_AC (F_N={fn_kpa} kPa, s={s_ratio})")
+            pac = adc.pac_to_counts(x, p["adc"]["pac_pa_per_count"], p["adc"]["pac_range_pa"])
+        full = int(p["adc"]["full_scale_counts"])
+        elec = None
+        if self.electrodes is not None:
+            elec = adc.to_uint12(self.electrodes(self.rng["electrodes"], self.n_slow, fn_kpa if in_contact else 0.0,
+                                                 a_mm, shift), full)
+        pdc = None
+        if self.scene.has("pdc"):
+            pdc = adc.to_uint12(pdc_counts(self.rng["pdc"], self.n_slow, fn_kpa, p["pdc"], p["adc"]["pdc_pa_per_count"]), full)
+        tac = tdc = None
+        if self.scene.has("temperature"):
+            tac, tdc = temperature_counts(self.rng["temperature"], self.n_slow, p["temperature"])
+            tac, tdc = adc.to_uint12(tac, full), adc.to_uint12(tdc, full)
+        mt = my = None
+        if self.scene.has("mocap"):
+            tt = np.arange(self.n_mocap) / p["timing"]["mocap_rate_hz"]
+            y_true = stick_slip.positions(self.rail, self.omega, self.zeta, tt)
+            mt = t0 + tt
+            my = mocap_samples(self.rng["mocap"], y_true, p["mocap"]["noise_mm"])
+
+        out = PeriodOutput(
+            period_index=k_step, t_start_s=t0, pac_counts=pac, electrode_counts=elec, pdc_counts=pdc,
+            tac_counts=tac, tdc_counts=tdc, mocap_t_s=mt, mocap_y_mm=my, normal_force_kpa=fn_kpa,
+            tangential_force_n=float(q), actuator_mm=self.rail.actuator_mm, object_y_mm=self.rail.y_mm,
+            stick_area_ratio=sar, load_ratio_stick=s_ratio, gross_slip=gross,
+            pzt_on=self.pzt_on and self.band is not None, pzt_intensity_db=self.pzt_db)
+        for name in ("tangential_force_n", "object_y_mm", "stick_area_ratio", "load_ratio_stick"):
+            if not math.isfinite(getattr(out, name)):
+                raise SimulationError(f"step {k_step}: non-finite {name} = {getattr(out, name)}")
+        self.prev_sar = sar
+        self.k_period += 1
+        if actuator_step:
+            self.rail.actuator_mm += self.step_mm
+        return out

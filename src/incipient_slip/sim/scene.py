@@ -1,0 +1,161 @@
+"""Scenes: which physical effects a simulated rig computes, and with which parameters.
+
+A scene YAML (``scenes/NAME.yaml``) looks like::
+
+    name: paper
+    description: the paper's rig, with PZT injection
+    params: default                 # sim/params/default.yaml, or a path to another file
+    effects: [contact, stick_slip, fingertip_modes, injection, ...]
+    injection_db: 0.0               # optional, PZT intensity I in dB
+    materials: [pla, abs]           # optional subset, default all materials of the params
+    overrides: {stick_slip: {spring_n_per_mm: 0.2}}   # optional parameter overrides
+
+Effects not listed are not computed and their outputs are None. A listed effect whose
+prerequisite is missing, an unknown effect or an unknown key is a SceneError naming the file.
+"""
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from incipient_slip.paths import scenes_dir
+
+PARAMS_DIR = Path(__file__).resolve().parent / "params"
+
+# effect -> effects it needs
+EFFECTS: dict[str, tuple[str, ...]] = {
+    "contact": (),
+    "stick_slip": ("contact",),
+    "fingertip_modes": ("contact", "stick_slip"),
+    "injection": ("fingertip_modes", "adc"),
+    "vibrotactile": ("fingertip_modes", "adc"),
+    "ambient_noise": ("adc",),
+    "electrodes": ("contact", "stick_slip", "adc"),
+    "pdc": ("contact", "adc"),
+    "temperature": ("adc",),
+    "mocap": ("stick_slip",),
+    "adc": (),
+}
+SCENE_KEYS = {"name", "description", "params", "effects", "injection_db", "materials", "overrides"}
+
+
+class SceneError(ValueError):
+    """A scene or parameter file is invalid; the message names the file and the key."""
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated scene: its effects, plain parameter values and materials."""
+
+    name: str
+    effects: frozenset[str]
+    params: dict                      # section -> key -> value (units stripped, see params YAML)
+    materials: tuple[str, ...]
+    injection_db: float = 0.0
+    source: str = ""                  # path of the scene file ("" when built in code)
+    yaml_text: str = ""
+    description: str = ""
+    units: dict = field(default_factory=dict, compare=False)
+
+    def has(self, effect: str) -> bool:
+        """Return True when the scene computes `effect`."""
+        return effect in self.effects
+
+
+def _strip(node, where: str, units: dict):
+    """Return the parameter tree with each {value, unit, source} leaf replaced by its value."""
+    if isinstance(node, dict) and "value" in node:
+        missing = {"value", "unit", "source"} - set(node)
+        if missing:
+            raise SceneError(f"{where}: parameter lacks {sorted(missing)} (need value, unit, source)")
+        units[where] = node["unit"]
+        return node["value"]
+    if isinstance(node, dict):
+        return {k: _strip(v, f"{where}.{k}", units) for k, v in node.items()}
+    raise SceneError(f"{where}: expected a mapping or {{value, unit, source}}, got {node!r}")
+
+
+def load_params(name_or_path: str | Path = "default") -> tuple[dict, dict, str]:
+    """Return (values, units, path) of a parameter YAML, by name in sim/params or by path."""
+    path = Path(name_or_path)
+    if not path.suffix:
+        path = PARAMS_DIR / f"{name_or_path}.yaml"
+    if not path.is_file():
+        raise SceneError(f"parameter file not found: {path}")
+    raw = yaml.safe_load(path.read_text())
+    units: dict = {}
+    values = {k: _strip(v, f"{path.name}:{k}", units) for k, v in raw.items()}
+    return values, units, str(path)
+
+
+def _apply_overrides(params: dict, overrides: dict, where: str) -> dict:
+    params = copy.deepcopy(params)
+    for section, entries in (overrides or {}).items():
+        if section not in params:
+            raise SceneError(f"{where}: overrides.{section}: unknown parameter section "
+                             f"(known: {', '.join(sorted(params))})")
+        if not isinstance(entries, dict):
+            raise SceneError(f"{where}: overrides.{section} must be a mapping")
+        for key, value in entries.items():
+            if key not in params[section]:
+                raise SceneError(f"{where}: overrides.{section}.{key}: unknown parameter "
+                                 f"(known: {', '.join(sorted(params[section]))})")
+            params[section][key] = value
+    return params
+
+
+def validate_effects(effects, where: str = "scene") -> frozenset[str]:
+    """Return the effects as a frozenset; raise SceneError for unknown or unmet effects."""
+    effects = frozenset(effects)
+    for effect in sorted(effects):
+        if effect not in EFFECTS:
+            raise SceneError(f"{where}: unknown effect {effect!r} (known: {', '.join(EFFECTS)})")
+        for need in EFFECTS[effect]:
+            if need not in effects:
+                raise SceneError(f"{where}: effect {effect!r} needs effect {need!r}, which the scene does not list")
+    return effects
+
+
+def scene_from_dict(doc: dict, where: str = "scene", yaml_text: str = "") -> Scene:
+    """Return a Scene from a parsed scene document (see module docstring)."""
+    if not isinstance(doc, dict):
+        raise SceneError(f"{where}: a scene must be a mapping")
+    for key in doc:
+        if key not in SCENE_KEYS:
+            raise SceneError(f"{where}: unknown key {key!r} (known: {', '.join(sorted(SCENE_KEYS))})")
+    if "effects" not in doc:
+        raise SceneError(f"{where}: missing key 'effects'")
+    effects = validate_effects(doc["effects"], where)
+    values, units, _ = load_params(doc.get("params", "default"))
+    values = _apply_overrides(values, doc.get("overrides"), where)
+    all_materials = tuple(values["materials"])
+    materials = tuple(doc.get("materials") or all_materials)
+    for m in materials:
+        if m not in values["materials"]:
+            raise SceneError(f"{where}: unknown material {m!r} (known: {', '.join(all_materials)})")
+    zeta = values["stick_slip"]["rail_damping_ratio"]
+    if not 0.0 <= zeta < 1.0:
+        raise SceneError(f"{where}: stick_slip.rail_damping_ratio = {zeta} must be in [0, 1)")
+    return Scene(name=str(doc.get("name", Path(where).stem)), effects=effects, params=values,
+                 materials=materials, injection_db=float(doc.get("injection_db", 0.0)),
+                 source=where, yaml_text=yaml_text, description=str(doc.get("description", "")),
+                 units=units)
+
+
+def load_scene(name_or_path: str | Path) -> Scene:
+    """Return the Scene named `name_or_path` (scenes/NAME.yaml) or read from that path."""
+    path = Path(name_or_path)
+    if not path.suffix:
+        path = scenes_dir() / f"{name_or_path}.yaml"
+    if not path.is_file():
+        known = sorted(p.stem for p in scenes_dir().glob("*.yaml"))
+        raise SceneError(f"scene not found: {name_or_path} (looked for {path}; known scenes: {', '.join(known)})")
+    text = path.read_text()
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise SceneError(f"{path}: not valid YAML: {exc}") from None
+    return scene_from_dict(doc, str(path), text)
