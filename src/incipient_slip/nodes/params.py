@@ -1,0 +1,118 @@
+"""Node command lines: `name:=value` parameters, `/from:=/to` remaps, `__name:=node_name`.
+
+The same syntax serves a node run by hand (`python -m incipient_slip.nodes.estimator
+window_s:=0.5`) and the launcher, which passes each launch-file parameter as `name:=<json>`
+(JSON is YAML, so the node gets the exact type back). Precedence: node defaults (`PARAMS`)
+< launch file < command line, because the launcher puts command-line overrides last.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import yaml
+
+__all__ = ["ParamError", "NodeArgs", "parse_node_argv", "parse_value", "format_value", "coerce_param",
+           "merge_params"]
+
+
+class ParamError(ValueError):
+    """A bad parameter or remap on a node's command line; names it and says what would be right."""
+
+
+@dataclass
+class NodeArgs:
+    """What a node's command line says: parameters, remaps and an optional node name."""
+
+    params: dict[str, Any] = field(default_factory=dict)
+    raw: dict[str, str] = field(default_factory=dict)      # the text each param came from
+    remaps: dict[str, str] = field(default_factory=dict)
+    node_name: str | None = None
+
+
+def parse_value(text: str) -> Any:
+    """The YAML value of a command-line text (`1.5` -> float, `true` -> bool, `sim` -> str)."""
+    try:
+        return yaml.safe_load(text) if text.strip() else ""
+    except yaml.YAMLError:
+        return text
+
+
+def format_value(value: Any) -> str:
+    """A command-line text that parse_value turns back into exactly `value`."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return ".nan" if math.isnan(value) else (".inf" if value > 0 else "-.inf")
+    return json.dumps(value, separators=(",", ":"))
+
+
+def parse_node_argv(argv: list[str]) -> NodeArgs:
+    """The parameters, remaps and node name in `argv`; ParamError on anything else."""
+    out = NodeArgs()
+    for token in argv:
+        if ":=" not in token:
+            raise ParamError(f"argument {token!r} is not 'name:=value' (parameter), "
+                             f"'/from:=/to' (remap) or '__name:=node_name'")
+        key, text = token.split(":=", 1)
+        if key == "__name":
+            out.node_name = text
+        elif key.startswith("/"):
+            if not text.startswith("/"):
+                raise ParamError(f"remap {token!r}: the target topic must start with '/'")
+            out.remaps[key] = text
+        elif key.isidentifier():
+            out.params[key] = parse_value(text)
+            out.raw[key] = text
+        else:
+            raise ParamError(f"argument {token!r}: {key!r} is not a parameter name "
+                             f"(letters, digits, '_') nor a topic ('/...')")
+    return out
+
+
+def coerce_param(node: str, name: str, default: Any, value: Any, raw: str | None = None) -> Any:
+    """`value` converted to the type of the parameter's default, or ParamError."""
+    if default is None or value is None:
+        return value
+    if isinstance(default, bool):
+        if isinstance(value, bool):
+            return value
+    elif isinstance(default, int):
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+        if isinstance(value, float) and value.is_integer():
+            return int(value)
+    elif isinstance(default, float):
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+    elif isinstance(default, str):
+        if isinstance(value, str):
+            return value
+        if raw is not None:         # `name:=123` for a string parameter means the text "123"
+            return raw
+        if isinstance(value, (int, float, bool)):
+            return str(value)
+    elif isinstance(default, (list, tuple)):
+        if isinstance(value, (list, tuple)):
+            return list(value)
+    elif isinstance(default, dict):
+        if isinstance(value, dict):
+            return value
+    else:
+        return value
+    raise ParamError(f"node {node!r}: parameter {name!r} = {value!r} ({type(value).__name__}) "
+                     f"does not fit its default {default!r} ({type(default).__name__})")
+
+
+def merge_params(node: str, defaults: dict[str, Any], *layers: dict[str, Any],
+                 raw: dict[str, str] | None = None) -> dict[str, Any]:
+    """The defaults overridden by each layer in turn; ParamError names any unknown parameter."""
+    out = dict(defaults)
+    raw = raw or {}
+    for layer in layers:
+        for name, value in layer.items():
+            if name not in defaults:
+                known = ", ".join(sorted(defaults)) or "(none)"
+                raise ParamError(f"node {node!r} has no parameter {name!r}; known: {known}")
+            out[name] = coerce_param(node, name, defaults[name], value, raw.get(name))
+    return out

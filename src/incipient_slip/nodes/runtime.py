@@ -1,0 +1,544 @@
+"""The node runtime: a `Node` base with params, pub/sub by topic, timers and clean shutdown.
+
+A node reads like an rclpy example (see docs/design.md, "Node API"):
+
+    class Talker(Node):
+        PARAMS = {"rate_hz": 100.0}
+        def __init__(self, **kwargs):
+            super().__init__("talker", **kwargs)
+            self.pub = self.create_publisher(BiotacPac)
+            self.create_timer(1.0 / self.param("rate_hz"), self.tick)
+        def tick(self):
+            self.pub.publish(BiotacPac(pac_counts=...))
+
+    def main(argv=None):
+        return run_node(Talker, argv)
+
+Transport: each node has one XPUB (all its publishers) and one SUB (all its subscriptions),
+found through `bus` (announcement files in the graph directory, no broker). Frames are
+`[topic + b"\\0", msgpack body]`; subscriptions are exact because the topic frame ends in NUL.
+The loop polls with at most `POLL_S` so that SIGINT/SIGTERM (which only set a flag) end
+`spin()` promptly; sockets close with a bounded linger and the exit code is 0.
+"""
+from __future__ import annotations
+
+import heapq
+import os
+import signal
+import sys
+import time
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import zmq
+
+from incipient_slip import messages as M
+from incipient_slip.nodes import bus
+from incipient_slip.nodes.params import ParamError, merge_params, parse_node_argv
+
+__all__ = ["Node", "Publisher", "RawPublisher", "Subscription", "RawSubscription", "Timer",
+           "run_node", "POLL_S", "LINGER_MS"]
+
+POLL_S = 0.1              # longest a loop blocks before it looks at the stop flag
+LINGER_MS = 500           # longest close() waits to flush queued messages
+HWM = 100_000             # per-peer queue, messages; P_AC at 100 frames/s is tiny beside it
+HEARTBEAT_S = 1.0
+_DRAIN_MAX = 1000         # messages handled per wake-up before timers get a turn
+_LOG_EVERY_S = 1.0        # rate limit of repeated warnings (malformed frames, callback errors)
+
+
+class Publisher:
+    """Publishes one message type on one topic; sets `seq` (and `stamp_ns` when it is 0)."""
+
+    def __init__(self, node: "Node", msg_type: type[M.Message], topic: str):
+        self.node, self.type, self.topic = node, msg_type, topic
+        self.frame = M.topic_frame(topic)
+        self.seq = 0
+        self._send = node._xpub.send_multipart
+
+    def publish(self, msg: M.Message, keep_seq: bool = False) -> int:
+        """Send `msg`; returns the seq it went out with (original seq when keep_seq)."""
+        if type(msg) is not self.type:
+            raise TypeError(f"publisher of {self.topic} sends {self.type.__name__}, "
+                            f"got {type(msg).__name__}")
+        if keep_seq:
+            seq = msg.seq
+        else:
+            seq = self.seq
+            self.seq = seq + 1
+        self._send([self.frame, M.encode(msg, stamp_ns=msg.stamp_ns or time.time_ns(), seq=seq)])
+        return seq
+
+    def subscriber_count(self) -> int:
+        """How many subscriptions (across nodes) currently match this topic."""
+        self.node._drain_xpub()
+        return self.node._subscribers_of(self.frame)
+
+    def wait_for_subscribers(self, n: int = 1, timeout_s: float = 5.0) -> bool:
+        """True once at least `n` subscriptions match this topic (slow-joiner handshake).
+
+        Uses the XPUB subscription messages, so when it returns True every counted subscriber
+        is connected and will receive what is published next. False on timeout or shutdown.
+        """
+        return self.node._wait_subscribers(self.frame, n, timeout_s)
+
+
+class RawPublisher(Publisher):
+    """Publishes already-encoded bodies on a topic (replay of recorded bytes)."""
+
+    def __init__(self, node: "Node", topic: str):
+        super().__init__(node, M.Message, topic)
+
+    def publish(self, msg, keep_seq: bool = True) -> int:  # noqa: D401 - same contract
+        raise TypeError("RawPublisher sends bytes: use publish_raw(body)")
+
+    def publish_raw(self, body: bytes) -> None:
+        """Send an encoded message body as it is (seq and stamp are whatever it holds)."""
+        self._send([self.frame, body])
+
+
+class Subscription:
+    """Delivers one message type on one topic to a callback; counts seq gaps and bad frames.
+
+    `gaps` counts jumps forward in seq, `missed` the messages those jumps skipped, `dropped`
+    the malformed frames, `errors` the exceptions raised by the callback. Gap counting assumes
+    one publisher per topic; a seq that goes backwards is taken as a restarted publisher.
+    For Heartbeat, seqs are tracked per node name.
+    """
+
+    def __init__(self, node: "Node", msg_type: type[M.Message], topic: str,
+                 callback: Callable[[M.Message], Any], on_gap: Callable[[int, int], Any] | None):
+        self.node, self.type, self.topic, self.callback = node, msg_type, topic, callback
+        self.on_gap = on_gap
+        self.received = self.gaps = self.missed = self.dropped = self.errors = 0
+        self.last_seq: int | None = None
+        self._last_by_source: dict[str, int] = {}
+
+    def _deliver(self, body: bytes, recv_ns: int) -> None:
+        node = self.node
+        try:
+            msg = M.decode(body, self.type, self.topic)
+        except M.MessageError as exc:
+            self.dropped += 1
+            node.malformed += 1
+            node._warn_limited(("drop", self.topic), f"dropped malformed message: {exc}")
+            return
+        self.received += 1
+        seq = msg.seq
+        if self.type is M.Heartbeat:
+            last = self._last_by_source.get(msg.node)
+            self._last_by_source[msg.node] = seq
+        else:
+            last = self.last_seq
+        self.last_seq = seq
+        if last is not None and seq > last + 1:
+            self.gaps += 1
+            self.missed += seq - last - 1
+            node.seq_gaps += 1
+            node._warn_limited(("gap", self.topic),
+                               f"seq gap on {self.topic}: {last} -> {seq} ({seq - last - 1} lost)")
+            if self.on_gap is not None:
+                self._call(self.on_gap, last, seq)
+        self._call(self.callback, msg)
+
+    def _call(self, fn, *args) -> None:
+        try:
+            fn(*args)
+        except Exception:  # a bad message must never kill the node: log, count, go on
+            self.errors += 1
+            self.node._warn_limited(("cb", self.topic),
+                                    f"callback for {self.topic} raised:\n{traceback.format_exc()}")
+
+
+class RawSubscription(Subscription):
+    """Delivers (topic, body, recv_ns) of every message whose topic matches (all if topic None)."""
+
+    def __init__(self, node: "Node", topic: str | None, callback):
+        super().__init__(node, M.Message, topic or "", callback, None)
+
+    def _deliver_raw(self, topic: str, body: bytes, recv_ns: int) -> None:
+        self.received += 1
+        self._call(self.callback, topic, body, recv_ns)
+
+
+@dataclass(order=True)
+class Timer:
+    """A periodic callback on the monotonic clock; `cancel()` stops it."""
+
+    due: float
+    period_s: float
+    callback: Callable[[], Any]
+    cancelled: bool = False
+
+    def cancel(self) -> None:
+        self.cancelled = True
+
+
+class Node:
+    """Base of every node: params, publishers, subscriptions, timers, heartbeat, clean shutdown.
+
+    Keyword arguments (all optional, normally filled by `run_node` from the command line):
+    `params` (overrides of PARAMS), `remaps` ({from topic: to topic}), `node_name` (overrides the
+    name given by the subclass), `graph_dir` (default: bus.graph_dir()), `raw_params` (the text
+    each command-line param came from), `heartbeat_s` (0 disables the heartbeat).
+    """
+
+    PARAMS: dict[str, Any] = {}
+
+    def __init__(self, name: str, *, params: dict | None = None, remaps: dict | None = None,
+                 node_name: str | None = None, graph_dir=None, raw_params: dict | None = None,
+                 heartbeat_s: float = HEARTBEAT_S, context: zmq.Context | None = None):
+        self.name = node_name or name
+        defaults: dict[str, Any] = {}
+        for klass in reversed(type(self).__mro__):
+            defaults.update(getattr(klass, "PARAMS", {}) or {})
+        self.params = merge_params(self.name, defaults, params or {}, raw=raw_params)
+        self.remaps = dict(remaps or {})
+        self.malformed = self.seq_gaps = 0
+        self.exit_code = 0
+        self.stop_reason = ""
+        self._stop = False
+        self._closed = False
+        self._t0 = time.monotonic()
+        self._timers: list[Timer] = []
+        self._subs: dict[str, list[Subscription]] = {}
+        self._raw_subs: list[RawSubscription] = []
+        self._pubs: dict[str, Publisher] = {}
+        self._sub_counts: dict[bytes, int] = {}
+        self._warned: dict[Any, list] = {}
+        self._log_prefix = "" if os.environ.get("SLIP_LAUNCHED") else f"[{self.name}] "
+
+        self._dir = bus.graph_dir() if graph_dir is None else Path(graph_dir)
+        self._dir.mkdir(parents=True, exist_ok=True)
+        self._ctx = context or zmq.Context.instance()
+        self._xpub = self._ctx.socket(zmq.XPUB)
+        self._xpub.setsockopt(zmq.XPUB_VERBOSE, 1)
+        self._xpub.setsockopt(zmq.XPUB_VERBOSER, 1)
+        self._xpub.setsockopt(zmq.SNDHWM, HWM)
+        self._xpub.setsockopt(zmq.LINGER, LINGER_MS)
+        if os.environ.get(bus.TRANSPORT_ENV, "ipc") == "tcp":
+            port = self._xpub.bind_to_random_port("tcp://127.0.0.1")
+            endpoint = f"tcp://127.0.0.1:{port}"
+        else:
+            endpoint = bus.ipc_endpoint(self._dir, self.name, os.getpid())
+            self._xpub.bind(endpoint)
+        self._sub = self._ctx.socket(zmq.SUB)
+        self._sub.setsockopt(zmq.RCVHWM, HWM)
+        self._sub.setsockopt(zmq.LINGER, 0)
+        self._poller = zmq.Poller()
+        self._poller.register(self._sub, zmq.POLLIN)
+        self._poller.register(self._xpub, zmq.POLLIN)
+        self._info = bus.NodeInfo(self.name, os.getpid(), endpoint, started_ns=time.time_ns())
+        self._discovery = bus.Discovery(self._dir)
+        self._connected: set[str] = set()
+        self._next_scan = 0.0
+        self._announce()
+        self._hb_pub = None
+        if heartbeat_s > 0:
+            self._hb_pub = self.create_publisher(M.Heartbeat)
+            self.create_timer(heartbeat_s, self._heartbeat)
+
+    # --- the API nodes use -----------------------------------------------------------------
+
+    def param(self, name: str) -> Any:
+        """The value of a parameter (default < launch file < command line)."""
+        try:
+            return self.params[name]
+        except KeyError:
+            raise ParamError(f"node {self.name!r} has no parameter {name!r}; known: "
+                             f"{', '.join(sorted(self.params)) or '(none)'}") from None
+
+    def resolve_topic(self, topic: str) -> str:
+        """The topic after this node's remaps."""
+        return self.remaps.get(topic, topic)
+
+    def create_publisher(self, msg_type: type[M.Message], topic: str | None = None) -> Publisher:
+        """A publisher of `msg_type` on `topic` (default msg_type.TOPIC), after remaps."""
+        topic = self.resolve_topic(topic or msg_type.TOPIC)
+        pub = self._pubs.get(topic)
+        if pub is not None:
+            if pub.type is not msg_type:
+                raise TypeError(f"{topic} is already published as {pub.type.__name__}")
+            return pub
+        pub = self._pubs[topic] = Publisher(self, msg_type, topic)
+        self._info.publishes[topic] = msg_type.__name__
+        self._announce()
+        return pub
+
+    def create_raw_publisher(self, topic: str) -> RawPublisher:
+        """A publisher of encoded bodies on `topic` (after remaps), for replay."""
+        topic = self.resolve_topic(topic)
+        pub = RawPublisher(self, topic)
+        self._info.publishes[topic] = "raw"
+        self._announce()
+        return pub
+
+    def create_subscription(self, msg_type: type[M.Message], callback: Callable[[M.Message], Any],
+                            topic: str | None = None,
+                            on_gap: Callable[[int, int], Any] | None = None) -> Subscription:
+        """Calls `callback(msg)` for each valid `msg_type` on `topic` (exact match, after remaps).
+
+        `on_gap(last_seq, seq)` (optional) is called before the callback when seqs jump.
+        """
+        topic = self.resolve_topic(topic or msg_type.TOPIC)
+        sub = Subscription(self, msg_type, topic, callback, on_gap)
+        self._subs.setdefault(topic, []).append(sub)
+        self._sub.setsockopt(zmq.SUBSCRIBE, M.topic_frame(topic))
+        self._info.subscribes[topic] = msg_type.__name__
+        self._announce()
+        self._discover()
+        return sub
+
+    def create_raw_subscription(self, callback: Callable[[str, bytes, int], Any],
+                                topic: str | None = None) -> RawSubscription:
+        """Calls `callback(topic, body, recv_ns)` for every message on `topic`, or on all topics
+        when topic is None (recorder, `slip topic echo`). Bodies are not decoded."""
+        topic = self.resolve_topic(topic) if topic else None
+        sub = RawSubscription(self, topic, callback)
+        self._raw_subs.append(sub)
+        self._sub.setsockopt(zmq.SUBSCRIBE, M.topic_frame(topic) if topic else b"")
+        self._info.subscribes[topic or "*"] = "raw"
+        self._announce()
+        self._discover()
+        return sub
+
+    def create_timer(self, period_s: float, callback: Callable[[], Any]) -> Timer:
+        """Calls `callback()` every `period_s` seconds (monotonic clock, first call after one period)."""
+        if not period_s > 0:
+            raise ValueError(f"timer period must be > 0 s, got {period_s}")
+        timer = Timer(time.monotonic() + period_s, period_s, callback)
+        heapq.heappush(self._timers, timer)
+        return timer
+
+    def now_ns(self) -> int:
+        """Wall-clock time, ns (sources stamp with it; followers should use message stamps)."""
+        return time.time_ns()
+
+    def log(self, text: str) -> None:
+        """A line on stderr (the launcher prefixes it with the node name)."""
+        print(f"{self._log_prefix}{text}", file=sys.stderr, flush=True)
+
+    def warn(self, text: str) -> None:
+        """A warning line on stderr."""
+        self.log(f"WARNING: {text}")
+
+    def shutdown(self, reason: str = "", exit_code: int = 0) -> None:
+        """Ends `spin()`, which then returns `exit_code`."""
+        if not self._stop:
+            self.stop_reason, self.exit_code = reason, exit_code
+        self._stop = True
+
+    @property
+    def stopping(self) -> bool:
+        """True once shutdown was requested (by a signal or by `shutdown()`)."""
+        return self._stop
+
+    def spin(self) -> int:
+        """Runs callbacks and timers until shutdown; returns the exit code."""
+        while not self._stop:
+            self.spin_once(POLL_S)
+        if self.stop_reason:
+            self.log(f"shutting down: {self.stop_reason}")
+        return self.exit_code
+
+    def spin_once(self, timeout_s: float = POLL_S) -> None:
+        """Waits at most `timeout_s` for messages, handles them and any due timers."""
+        now = time.monotonic()
+        if now >= self._next_scan:
+            self._discover()
+            now = time.monotonic()
+        wait = min(timeout_s, self._next_scan - now)
+        timers = self._timers
+        if timers:
+            wait = min(wait, timers[0].due - now)
+        events = self._poller.poll(max(0.0, wait) * 1000.0) if wait > 0 else self._poller.poll(0)
+        for sock, _ in events:
+            if sock is self._sub:
+                self._drain_sub()
+            else:
+                self._drain_xpub()
+        if timers and timers[0].due <= time.monotonic():
+            self._run_timers()
+
+    def close(self) -> None:
+        """Withdraws the announcement and closes the sockets (bounded linger). Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        bus.withdraw(self._info)
+        self._sub.close(linger=0)
+        self._xpub.close(linger=LINGER_MS)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # --- internals ---------------------------------------------------------------------------
+
+    def _announce(self) -> None:
+        bus.announce(self._dir, self._info)
+
+    def _discover(self) -> None:
+        self._next_scan = time.monotonic() + POLL_S
+        added, removed = self._discovery.changes()
+        for endpoint in added:
+            if endpoint not in self._connected:
+                self._sub.connect(endpoint)
+                self._connected.add(endpoint)
+        for endpoint in removed:
+            if endpoint in self._connected:
+                try:
+                    self._sub.disconnect(endpoint)
+                except zmq.ZMQError:
+                    pass
+                self._connected.discard(endpoint)
+
+    def _drain_sub(self) -> None:
+        recv = self._sub.recv_multipart
+        subs = self._subs
+        raw_subs = self._raw_subs
+        for _ in range(_DRAIN_MAX):
+            try:
+                frames = recv(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            recv_ns = time.time_ns()
+            if len(frames) == 2 and frames[0][-1:] == b"\0":
+                raw_topic, body = frames
+                try:
+                    topic = raw_topic[:-1].decode()
+                except UnicodeDecodeError:
+                    topic = None
+            else:
+                topic = None
+            if topic is None:
+                self.malformed += 1
+                try:
+                    M.split_frames(frames)
+                except M.MessageError as exc:
+                    self._warn_limited("frames", f"dropped malformed frames: {exc}")
+                continue
+            for sub in subs.get(topic, ()):
+                sub._deliver(body, recv_ns)
+            for raw in raw_subs:
+                if raw.topic == "" or raw.topic == topic:
+                    raw._deliver_raw(topic, body, recv_ns)
+            if self._stop:
+                return
+
+    def _drain_xpub(self) -> None:
+        counts = self._sub_counts
+        while True:
+            try:
+                msg = self._xpub.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            if not msg:
+                continue
+            prefix = msg[1:]
+            if msg[0] == 1:
+                counts[prefix] = counts.get(prefix, 0) + 1
+            elif msg[0] == 0:
+                counts[prefix] = max(0, counts.get(prefix, 0) - 1)
+
+    def _subscribers_of(self, frame: bytes) -> int:
+        return sum(n for prefix, n in self._sub_counts.items() if frame.startswith(prefix))
+
+    def _wait_subscribers(self, frame: bytes, n: int, timeout_s: float) -> bool:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            self._drain_xpub()
+            if self._subscribers_of(frame) >= n:
+                return True
+            left = deadline - time.monotonic()
+            if left <= 0 or self._stop:
+                return False
+            self._xpub.poll(min(left, POLL_S) * 1000.0, zmq.POLLIN)
+
+    def _run_timers(self) -> None:
+        timers = self._timers
+        now = time.monotonic()
+        while timers and timers[0].due <= now and not self._stop:
+            timer = heapq.heappop(timers)
+            if timer.cancelled:
+                continue
+            # Next due from the schedule, not from now, so the rate does not drift; skip
+            # missed ticks rather than bursting after a stall.
+            timer.due += timer.period_s
+            if timer.due <= now:
+                timer.due = now + timer.period_s
+            heapq.heappush(timers, timer)
+            try:
+                timer.callback()
+            except Exception:
+                self._warn_limited(("timer", id(timer)), f"timer callback raised:\n{traceback.format_exc()}")
+
+    def _heartbeat(self) -> None:
+        self._hb_pub.publish(M.Heartbeat(node=self.name, pid=os.getpid(),
+                                         uptime_s=time.monotonic() - self._t0,
+                                         malformed_dropped=self.malformed, seq_gaps=self.seq_gaps))
+
+    def _warn_limited(self, key, text: str) -> None:
+        now = time.monotonic()
+        state = self._warned.get(key)
+        if state is None or now - state[0] >= _LOG_EVERY_S:
+            suppressed = state[1] if state else 0
+            self.warn(text + (f" ({suppressed} similar suppressed)" if suppressed else ""))
+            self._warned[key] = [now, 0]
+        else:
+            state[1] += 1
+
+
+def run_node(node_class: type[Node], argv: list[str] | None = None, **kwargs) -> int:
+    """Builds the node from the command line (`name:=value`, `/from:=/to`, `__name:=x`), spins
+    until SIGINT/SIGTERM or `shutdown()`, closes it; returns the exit code (0 on a signal)."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if any(a in ("-h", "--help") for a in argv):
+        print(_usage(node_class))
+        return 0
+    try:
+        args = parse_node_argv(argv)
+    except ParamError as exc:
+        print(f"{node_class.__name__}: {exc}", file=sys.stderr)
+        return 2
+    node = None
+
+    def on_signal(signum, frame):
+        if node is None:
+            raise KeyboardInterrupt
+        if node.stopping:   # second signal: the user means it
+            raise KeyboardInterrupt
+        node.shutdown()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        node = node_class(params=args.params, raw_params=args.raw, remaps=args.remaps,
+                          node_name=args.node_name, **kwargs)
+        return node.spin()
+    except ParamError as exc:
+        print(f"{node_class.__name__}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 0 if node is None or node.exit_code == 0 else node.exit_code
+    except Exception:
+        traceback.print_exc()
+        return 1
+    finally:
+        if node is not None:
+            node.close()
+        for s, handler in old.items():
+            signal.signal(s, handler)
+
+
+def _usage(node_class: type[Node]) -> str:
+    defaults: dict[str, Any] = {}
+    for klass in reversed(node_class.__mro__):
+        defaults.update(getattr(klass, "PARAMS", {}) or {})
+    lines = [f"usage: python -m {node_class.__module__} [name:=value ...] [/from:=/to ...] "
+             f"[__name:=node_name]", "", (node_class.__doc__ or "").strip(), "", "parameters:"]
+    lines += [f"  {k} = {v!r}" for k, v in defaults.items()] or ["  (none)"]
+    return "\n".join(lines)
