@@ -1,0 +1,299 @@
+"""Training: windows -> (phi, s) -> grid-searched SVR (or a scalable approximation) -> Model.
+
+Splits are grouped by series: windows overlap by 50 %, so a window-level random split would put
+half of a test window into training. The held-out test set is the same 10 % of *series indices*
+for every method (`held_out_series`), chosen per material so every material is tested.
+
+Regressor kinds (all exported to the array form of `modelfile.Model`):
+
+* `svr`: exact kernel SVR (libsvm via scikit-learn), kernel and C / gamma / epsilon by grouped
+  grid search, fitted on at most `max_train` windows (a random subsample when the training set
+  is larger; exact SVR time grows ~n^2, see docs/accuracy-vs-time.md).
+* `nystroem`: RBF Nystroem features (`n_components` landmarks) + ridge regression on *all*
+  training windows; gamma from a small exact-SVR grid on a subsample, ridge alpha by grouped
+  validation. Scales linearly in the number of windows.
+* `linear`: ridge regression on the standardized features.
+"""
+from __future__ import annotations
+
+import hashlib
+import time
+from dataclasses import dataclass, field
+from itertools import product
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from . import dataset as ds
+from .features import FeatureSpec, feature_spec, series_features, valid_window_mask
+from .labels import label_series
+from .modelfile import Model
+
+SPLIT_SEED = 20240917
+TEST_FRACTION = 0.10
+KINDS = ("svr", "nystroem", "linear")
+
+
+@dataclass
+class WindowSet:
+    """All labelled windows of a data set for one feature spec, one row per window."""
+
+    X: np.ndarray               # (n, n_features) float32
+    y: np.ndarray               # pseudo-stick ratio
+    series: np.ndarray          # series index (the group)
+    material: np.ndarray        # material name per row
+    period: np.ndarray          # period index k within its series
+    stick_area_ratio: np.ndarray
+    load_ratio_stick: np.ndarray
+    tangential_force_n: np.ndarray
+    normal_force_kpa: np.ndarray
+    spec: FeatureSpec
+    data_hash: str = ""
+    skipped_series: list = field(default_factory=list)   # no gross slip detected
+
+    def subset(self, mask: np.ndarray) -> "WindowSet":
+        keep = {k: getattr(self, k)[mask] for k in ("X", "y", "series", "material", "period",
+                                                  "stick_area_ratio", "load_ratio_stick",
+                                                  "tangential_force_n", "normal_force_kpa")}
+        return WindowSet(**keep, spec=self.spec, data_hash=self.data_hash,
+                         skipped_series=self.skipped_series)
+
+    def series_materials(self) -> dict:
+        return {int(s): str(m) for s, m in zip(self.series, self.material)}
+
+
+def load_windows(data_dir: str | Path, spec: FeatureSpec, min_window_s: float | None = None,
+                 progress: bool = True) -> WindowSet:
+    """Return every labelled window of a data set for `spec` (one series file at a time).
+
+    min_window_s: keep only windows that would also be complete for a window of this length
+    (used to compare different T on the same samples).
+    """
+    meta = ds.read_meta(data_dir)
+    if spec.stream == "pac" and spec.injection is not None and bool(meta.get("injection", True)) != spec.injection:
+        raise ds.DatasetError(
+            f"{data_dir}: data set has injection={meta.get('injection')} but method "
+            f"{spec.method} needs injection={spec.injection} (scene 'paper' for injection, "
+            "'no_injection' for vibrotactile)")
+    paths = ds.series_paths(data_dir)
+    parts, skipped = [], []
+    for path in tqdm(paths, desc=f"phi {spec.method} {Path(data_dir).name}", unit="series",
+                     disable=not progress, leave=False):
+        s = ds.load_series(path)
+        lab = label_series(s)
+        if lab.gross_slip_index < 0:
+            skipped.append(s.index)
+            continue
+        n_stream = len(s.pac_counts) if spec.stream == "pac" else len(s.electrode_counts)
+        ok = valid_window_mask(s.period_end_s, spec, n_stream)
+        if min_window_s is not None:
+            ok &= s.period_end_s - min_window_s >= -1e-9
+        k = np.flatnonzero(ok)
+        if len(k) == 0:
+            continue
+        X = series_features(s, spec, s.period_end_s[k])
+        parts.append((X, lab.pseudo_stick_ratio[k], np.full(len(k), s.index),
+                      np.full(len(k), s.material, dtype=object), k, s.stick_area_ratio[k],
+                      s.load_ratio_stick[k], s.tangential_force_n[k], s.normal_force_kpa[k]))
+    if not parts:
+        raise ds.DatasetError(f"{data_dir}: no labelled windows (no series with gross slip?)")
+    cols = [np.concatenate(c) for c in zip(*parts)]
+    cols[3] = cols[3].astype(str)
+    return WindowSet(*cols, spec=spec, data_hash=ds.dataset_hash(data_dir), skipped_series=skipped)
+
+
+def _rank(seed: int, index: int) -> str:
+    return hashlib.sha256(f"{seed}:{index}".encode()).hexdigest()
+
+
+def held_out_series(series_material: dict, fraction: float = TEST_FRACTION,
+                    seed: int = SPLIT_SEED) -> np.ndarray:
+    """Return the sorted test series indices: per material, the ceil(fraction * n) series with
+    the smallest hash(seed, index). Depends only on (index, material), so every method and
+    both data sets (with and without injection) share it when their series agree."""
+    by_material: dict = {}
+    for idx, mat in series_material.items():
+        by_material.setdefault(mat, []).append(int(idx))
+    test = []
+    for mat in sorted(by_material):
+        idxs = sorted(by_material[mat], key=lambda i: _rank(seed, i))
+        n_test = int(np.ceil(fraction * len(idxs) - 1e-9))
+        if len(idxs) > 1:
+            n_test = min(max(n_test, 1), len(idxs) - 1)
+        else:
+            n_test = 0
+        test.extend(idxs[:n_test])
+    return np.array(sorted(test), dtype=np.int64)
+
+
+def grouped_folds(groups: np.ndarray, n_folds: int, seed: int = SPLIT_SEED):
+    """Yield (train_rows, val_rows) with whole series per fold (no series in both)."""
+    uniq = np.unique(groups)
+    order = sorted(uniq.tolist(), key=lambda i: _rank(seed + 1, i))
+    fold_of = {g: j % n_folds for j, g in enumerate(order)}
+    f = np.array([fold_of[g] for g in groups])
+    for j in range(n_folds):
+        yield np.flatnonzero(f != j), np.flatnonzero(f == j)
+
+
+def subsample_rows(n: int, max_rows: int | None, seed: int = SPLIT_SEED) -> np.ndarray:
+    """Return sorted row indices of a seeded uniform subsample (all rows when n <= max_rows)."""
+    if max_rows is None or n <= max_rows:
+        return np.arange(n)
+    return np.sort(np.random.default_rng(seed).choice(n, size=max_rows, replace=False))
+
+
+def _standardize(X):
+    mean = X.mean(axis=0, dtype=np.float64)
+    scale = X.std(axis=0, dtype=np.float64)
+    scale[scale < 1e-12] = 1.0
+    return mean, scale
+
+
+def svr_grid(n_features: int, quick: bool = False) -> list[dict]:
+    """Return the SVR hyper-parameter grid (gamma in units of 1 / n_features, 'scale')."""
+    eps = (0.02, 0.05)
+    if quick:
+        rbf = [dict(kernel="rbf", C=C, gamma=g / n_features, epsilon=0.05)
+               for C, g in product((1.0, 10.0), (0.3, 1.0))]
+        return rbf + [dict(kernel="linear", C=1.0, epsilon=0.05)]
+    rbf = [dict(kernel="rbf", C=C, gamma=g / n_features, epsilon=e)
+           for C, g, e in product((0.3, 1.0, 3.0, 10.0), (0.3, 1.0, 3.0), eps)]
+    lin = [dict(kernel="linear", C=C, epsilon=e) for C, e in product((0.1, 1.0), eps)]
+    return rbf + lin
+
+
+def _fit_svr(Z, y, params, cache_mb=500):
+    from sklearn.svm import SVR
+    p = dict(params)
+    return SVR(cache_size=cache_mb, **p).fit(Z, y)
+
+
+def grid_search_svr(X, y, groups, grid, n_folds=3, progress=True, desc="grid"):
+    """Return (best params, rows of {params, rmse}) by grouped k-fold RMSE on standardized X."""
+    mean, scale = _standardize(X)
+    Z = (X - mean) / scale
+    folds = list(grouped_folds(groups, n_folds))
+    rows = []
+    for params in tqdm(grid, desc=desc, unit="cfg", disable=not progress, leave=False):
+        errs = []
+        for tr, va in folds:
+            m = _fit_svr(Z[tr], y[tr], params)
+            errs.append(np.mean((np.clip(m.predict(Z[va]), 0, 1) - y[va]) ** 2))
+        rows.append({"params": params, "rmse": float(np.sqrt(np.mean(errs)))})
+    best = min(rows, key=lambda r: r["rmse"])
+    return best["params"], rows
+
+
+def model_from_svr(svr, mean, scale, spec) -> Model:
+    """Return the array form of a fitted sklearn SVR on standardized features."""
+    kernel = svr.kernel
+    gamma = float(svr._gamma) if kernel in ("rbf", "poly", "sigmoid") else 1.0
+    return Model(spec=spec, kind="kernel", mean=mean, scale=scale,
+                 weights=svr.dual_coef_[0], intercept=float(svr.intercept_[0]),
+                 centers=svr.support_vectors_, kernel=kernel, gamma=gamma,
+                 coef0=float(svr.coef0), degree=int(svr.degree))
+
+
+def fit_nystroem(Z, y, gamma, n_components, alpha, seed=SPLIT_SEED):
+    """Return (centers, weights, intercept) of RBF Nystroem features + ridge on standardized Z."""
+    from sklearn.kernel_approximation import Nystroem
+    from sklearn.linear_model import Ridge
+    ny = Nystroem(kernel="rbf", gamma=gamma, n_components=min(n_components, len(Z)),
+                  random_state=seed).fit(Z)
+    F = ny.transform(Z)
+    ridge = Ridge(alpha=alpha).fit(F, y)
+    weights = ny.normalization_.T @ ridge.coef_
+    return ny.components_, weights, float(ridge.intercept_)
+
+
+@dataclass
+class TrainResult:
+    model: Model
+    report: dict
+
+
+def train_model(ws: WindowSet, kind: str = "svr", max_train: int | None = 6000,
+                grid_max: int = 2000, n_components: int = 1000, quick: bool = False,
+                progress: bool = True, params: dict | None = None) -> TrainResult:
+    """Return a Model trained on all rows of `ws` (the caller removes the test series first).
+
+    params: skip the grid and use these SVR parameters (kind svr / gamma for nystroem).
+    """
+    if kind not in KINDS:
+        raise ValueError(f"kind {kind!r} unknown; expected one of {', '.join(KINDS)}")
+    t0 = time.perf_counter()
+    X, y, groups = ws.X.astype(np.float64), ws.y, ws.series
+    report = {"kind": kind, "n_windows": int(len(y)), "n_series": int(len(np.unique(groups)))}
+    grid_rows = []
+    if kind in ("svr", "nystroem") and params is None:
+        g = subsample_rows(len(y), grid_max)
+        n_folds = min(3, len(np.unique(groups[g])))
+        params, grid_rows = grid_search_svr(X[g], y[g], groups[g], svr_grid(X.shape[1], quick),
+                                            n_folds=n_folds, progress=progress,
+                                            desc=f"grid {ws.spec.method}")
+    report["grid"] = grid_rows
+    if kind == "svr":
+        rows = subsample_rows(len(y), max_train)
+        mean, scale = _standardize(X[rows])
+        t1 = time.perf_counter()
+        svr = _fit_svr((X[rows] - mean) / scale, y[rows], params)
+        report["fit_s"] = time.perf_counter() - t1
+        model = model_from_svr(svr, mean, scale, ws.spec)
+        report.update(params=params, n_fit=int(len(rows)), n_support=int(len(svr.support_)))
+    elif kind == "nystroem":
+        mean, scale = _standardize(X)
+        Z = (X - mean) / scale
+        gamma = params.get("gamma") if params.get("kernel") == "rbf" else 1.0 / X.shape[1]
+        gamma = float(gamma)
+        alphas = (1e-3, 1e-2, 1e-1, 1.0)
+        tr, va = next(grouped_folds(groups, 5))
+        scores = []
+        for a in alphas:
+            c, w, b = fit_nystroem(Z[tr], y[tr], gamma, n_components, a)
+            scores.append(_rmse(_kernel_predict(Z[va], c, w, b, gamma), y[va]))
+        alpha = alphas[int(np.argmin(scores))]
+        t1 = time.perf_counter()
+        centers, weights, b = fit_nystroem(Z, y, gamma, n_components, alpha)
+        report["fit_s"] = time.perf_counter() - t1
+        model = Model(spec=ws.spec, kind="kernel", mean=mean, scale=scale, weights=weights,
+                      intercept=b, centers=centers, kernel="rbf", gamma=gamma)
+        report.update(params={"gamma": gamma, "alpha": alpha, "n_components": int(len(centers))},
+                      n_fit=int(len(y)), alpha_rmse=dict(zip(map(str, alphas), scores)))
+    else:
+        from sklearn.linear_model import Ridge
+        mean, scale = _standardize(X)
+        Z = (X - mean) / scale
+        tr, va = next(grouped_folds(groups, 5))
+        alphas = (1e-2, 1.0, 100.0)
+        scores = [_rmse(np.clip(Ridge(alpha=a).fit(Z[tr], y[tr]).predict(Z[va]), 0, 1), y[va])
+                  for a in alphas]
+        alpha = alphas[int(np.argmin(scores))]
+        t1 = time.perf_counter()
+        r = Ridge(alpha=alpha).fit(Z, y)
+        report["fit_s"] = time.perf_counter() - t1
+        model = Model(spec=ws.spec, kind="linear", mean=mean, scale=scale, weights=r.coef_,
+                      intercept=float(r.intercept_))
+        report.update(params={"alpha": alpha}, n_fit=int(len(y)))
+    report["train_s"] = time.perf_counter() - t0
+    model.header.update({"hyper_parameters": report.get("params"), "regressor": kind,
+                         "training_data_hash": ws.data_hash, "n_train_windows": int(len(y)),
+                         "n_fit_windows": report.get("n_fit"),
+                         "train_series": [int(v) for v in np.unique(groups)]})
+    return TrainResult(model, report)
+
+
+def _kernel_predict(Z, centers, weights, b, gamma):
+    sq = (Z * Z).sum(1)[:, None] + (centers * centers).sum(1)[None] - 2 * Z @ centers.T
+    return np.clip(np.exp(-gamma * np.maximum(sq, 0)) @ weights + b, 0, 1)
+
+
+def _rmse(pred, y):
+    return float(np.sqrt(np.mean((np.asarray(pred) - y) ** 2)))
+
+
+def split_train_test(ws: WindowSet, test_series: np.ndarray) -> tuple[WindowSet, WindowSet]:
+    """Return (train, test) WindowSets by series membership."""
+    is_test = np.isin(ws.series, test_series)
+    return ws.subset(~is_test), ws.subset(is_test)

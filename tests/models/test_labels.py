@@ -1,0 +1,54 @@
+import numpy as np
+from hypothesis import given, settings, strategies as st
+
+from incipient_slip.models.labels import (GROSS_SLIP_MM, gross_slip_travel_mm, mocap_position_at,
+                                          pseudo_stick_ratio)
+
+
+def test_pseudo_stick_ratio_is_one_minus_force_ratio_before_slip_and_zero_after():
+    ft = np.array([0.0, 1.0, 2.0, 3.0, 4.0, 3.5])
+    travel = np.array([0.0, 0.001, 0.002, 0.003, 0.05, 0.2])
+    lab = pseudo_stick_ratio(ft, travel)
+    assert lab.gross_slip_index == 4
+    assert lab.tangential_force_slip_n == 4.0
+    np.testing.assert_allclose(lab.pseudo_stick_ratio, [1.0, 0.75, 0.5, 0.25, 0.0, 0.0])
+
+
+def test_force_slip_is_the_peak_force_when_the_force_drops_during_the_slide():
+    lab = pseudo_stick_ratio(np.array([0.0, 2.0, 4.0, 1.0]), np.array([0, 0, 0, 0.1]))
+    assert lab.tangential_force_slip_n == 4.0
+
+
+def test_series_without_gross_slip_has_no_label():
+    lab = pseudo_stick_ratio(np.arange(5.0), np.zeros(5))
+    assert lab.gross_slip_index == -1
+    assert np.isnan(lab.pseudo_stick_ratio).all()
+
+
+def test_gross_slip_threshold_is_inclusive():
+    lab = pseudo_stick_ratio(np.arange(4.0), np.array([0, 0, GROSS_SLIP_MM, 0]))
+    assert lab.gross_slip_index == 2
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.floats(0, 10), min_size=3, max_size=40), st.integers(0, 39))
+def test_labels_lie_in_unit_interval_and_vanish_after_slip(forces, k):
+    ft = np.sort(np.array(forces))
+    k = min(k, len(ft) - 1)
+    travel = np.zeros(len(ft))
+    travel[k] = 1.0
+    s = pseudo_stick_ratio(ft, travel).pseudo_stick_ratio
+    assert ((s >= 0) & (s <= 1)).all()
+    assert (s[k:] == 0).all()
+
+
+def test_travel_over_last_half_second_reads_mocap_averages():
+    t = np.arange(0, 3, 1 / 120)
+    y = np.where(t < 2.2, 0.0, 1.0)   # a 1 mm step at 2.2 s
+    travel = gross_slip_travel_mm(t, y, np.array([1.0, 1.5, 2.5, 3.0]))
+    np.testing.assert_allclose(travel, [0, 0, 1, 0], atol=1e-12)
+
+
+def test_mocap_average_falls_back_to_interpolation_between_sparse_samples():
+    t = np.array([0.0, 1.0])
+    np.testing.assert_allclose(mocap_position_at(t, np.array([0.0, 2.0]), np.array([0.5])), [1.0])

@@ -1,0 +1,76 @@
+import json
+import zipfile
+
+import numpy as np
+import pytest
+
+from incipient_slip.models.estimator_core import ModelFileError, load_model
+from incipient_slip.models.features import feature_spec
+from incipient_slip.models.modelfile import Model, read_model_file, save_model
+
+
+def _model(method="injection", kind="kernel"):
+    spec = feature_spec(method)
+    rng = np.random.default_rng(0)
+    n = spec.n_features
+    return Model(spec=spec, kind=kind, mean=rng.normal(size=n), scale=rng.random(n) + 0.5,
+                 weights=rng.normal(size=7 if kind == "kernel" else n), intercept=0.4,
+                 centers=rng.normal(size=(7, n)) if kind == "kernel" else None, gamma=0.01)
+
+
+@pytest.mark.parametrize("kind", ["kernel", "linear"])
+def test_model_file_round_trip_predicts_identically(tmp_path, kind):
+    m = _model(kind=kind)
+    path = save_model(m, tmp_path / "m.npz", {"hyper_parameters": {"C": 1.0}})
+    back = read_model_file(path)
+    X = np.random.default_rng(1).normal(size=(4, m.spec.n_features))
+    np.testing.assert_array_equal(back.predict_raw(X), m.predict_raw(X))
+    assert back.header["hyper_parameters"] == {"C": 1.0}
+    assert "numpy" in back.header["versions"]
+
+
+def test_model_file_holds_no_pickled_objects(tmp_path):
+    path = save_model(_model(), tmp_path / "m.npz")
+    with np.load(path, allow_pickle=False) as data:   # would raise on an object array
+        assert set(data.files) == {"header", "mean", "scale", "weights", "intercept", "centers"}
+    with zipfile.ZipFile(path) as z:
+        assert all(name.endswith(".npy") for name in z.namelist())
+
+
+def test_load_model_refuses_a_spec_that_does_not_match_the_stream(tmp_path):
+    path = save_model(_model("e19", kind="linear"), tmp_path / "e19.npz")
+    with pytest.raises(ModelFileError, match=r"feature_spec.stream is 'electrodes' but the stream has 'pac'"):
+        load_model(path, stream="pac")
+    with pytest.raises(ModelFileError, match="rate_hz"):
+        load_model(path, rate_hz=2200)
+    assert load_model(path, stream="electrodes", rate_hz=100, method="e19").method == "e19"
+
+
+def test_load_model_refuses_an_edited_spec(tmp_path):
+    path = save_model(_model(), tmp_path / "m.npz")
+    with np.load(path) as d:
+        arrays = {k: d[k] for k in d.files}
+    header = json.loads(arrays["header"].tobytes())
+    header["feature_spec"]["bin_hz"] = 5.0
+    arrays["header"] = np.frombuffer(json.dumps(header).encode(), np.uint8)
+    np.savez(tmp_path / "edited.npz", **arrays)
+    with pytest.raises(ModelFileError, match="feature_spec_hash"):
+        load_model(tmp_path / "edited.npz")
+
+
+def test_load_model_names_a_missing_file(tmp_path):
+    with pytest.raises(ModelFileError, match="does not exist"):
+        load_model(tmp_path / "nope.npz")
+
+
+def test_load_model_refuses_a_file_that_is_not_a_model(tmp_path):
+    (tmp_path / "x.npz").write_bytes(b"not a zip")
+    with pytest.raises(ModelFileError, match="not a readable model file"):
+        load_model(tmp_path / "x.npz")
+
+
+def test_predictions_are_clipped_to_unit_interval():
+    m = _model(kind="linear")
+    X = np.random.default_rng(2).normal(size=(50, m.spec.n_features)) * 100
+    p = m.predict(X)
+    assert p.min() >= 0 and p.max() <= 1

@@ -1,0 +1,73 @@
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from incipient_slip.models.features import feature_spec
+from incipient_slip.models.training import (grouped_folds, held_out_series, load_windows,
+                                            split_train_test, train_model)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.sampled_from(["pla", "abs", "tpu", "wood", "rubber"]), min_size=2, max_size=120))
+def test_held_out_series_is_about_ten_percent_per_material_and_never_a_whole_material(materials):
+    sm = dict(enumerate(materials))
+    test = set(held_out_series(sm).tolist())
+    for mat in set(materials):
+        idx = [i for i, m in sm.items() if m == mat]
+        n_test = len(test.intersection(idx))
+        assert n_test < len(idx) or len(idx) == 0
+        assert n_test == (0 if len(idx) == 1 else min(max(int(np.ceil(0.1 * len(idx) - 1e-9)), 1), len(idx) - 1))
+
+
+def test_held_out_series_is_the_same_for_any_data_set_with_the_same_series():
+    sm = {i: ["pla", "abs", "tpu", "wood", "rubber"][i % 5] for i in range(500)}
+    a = held_out_series(sm)
+    b = held_out_series(dict(reversed(list(sm.items()))))
+    np.testing.assert_array_equal(a, b)
+    assert len(a) == 50
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.integers(0, 30), min_size=5, max_size=300), st.integers(2, 5))
+def test_grouped_folds_never_share_a_series(groups, n_folds):
+    groups = np.array(groups)
+    for tr, va in grouped_folds(groups, n_folds):
+        assert not set(groups[tr]) & set(groups[va])
+        assert len(tr) + len(va) == len(groups)
+
+
+def test_train_test_split_never_shares_a_series(fake_injection_dir):
+    ws = load_windows(fake_injection_dir, feature_spec("e4"), progress=False)
+    train, test = split_train_test(ws, held_out_series(ws.series_materials()))
+    assert len(test.y) > 0 and len(train.y) > 0
+    assert not set(train.series) & set(test.series)
+
+
+@pytest.mark.parametrize("method,kind", [("injection", "svr"), ("e19", "svr"), ("injection", "nystroem"),
+                                         ("e10", "linear")])
+def test_model_trained_on_small_set_beats_constant_predictor(fake_injection_dir, method, kind):
+    ws = load_windows(fake_injection_dir, feature_spec(method), progress=False)
+    train, test = split_train_test(ws, held_out_series(ws.series_materials()))
+    model = train_model(train, kind, quick=True, progress=False, n_components=200).model
+    rmse = np.sqrt(np.mean((model.predict(test.X) - test.y) ** 2))
+    constant = np.sqrt(np.mean((train.y.mean() - test.y) ** 2))
+    assert rmse < 0.5 * constant
+
+
+def test_exported_svr_predicts_like_sklearn(fake_injection_dir):
+    from sklearn.svm import SVR
+    from incipient_slip.models.training import model_from_svr
+    ws = load_windows(fake_injection_dir, feature_spec("injection"), progress=False)
+    X = ws.X.astype(np.float64)
+    mean, scale = X.mean(0), X.std(0)
+    for kernel in ("rbf", "linear", "poly"):
+        svr = SVR(kernel=kernel, C=1.0, gamma="scale", degree=2).fit((X[:300] - mean) / scale, ws.y[:300])
+        model = model_from_svr(svr, mean, scale, ws.spec)
+        np.testing.assert_allclose(model.predict_raw(X[300:400]), svr.predict((X[300:400] - mean) / scale),
+                                   atol=1e-8)
+
+
+def test_vibrotactile_method_refuses_a_data_set_with_injection(fake_injection_dir):
+    from incipient_slip.models.dataset import DatasetError
+    with pytest.raises(DatasetError, match="injection"):
+        load_windows(fake_injection_dir, feature_spec("vibrotactile"), progress=False)
