@@ -1,0 +1,29 @@
+"""Test node: counts P_AC frames; prints a line per `report_every` frames; exits after `count`."""
+import sys
+
+from incipient_slip.messages import BiotacPac
+from incipient_slip.nodes.runtime import Node, run_node
+
+
+class Listener(Node):
+    PARAMS = {"count": 0, "report_every": 0}
+
+    def __init__(self, **kwargs):
+        super().__init__("listener", **kwargs)
+        self.sub = self.create_subscription(BiotacPac, self.on_pac)
+
+    def on_pac(self, msg):
+        n = self.sub.received
+        if self.param("report_every") and n % self.param("report_every") == 0:
+            print(f"received {n} seq {msg.seq} gaps {self.sub.gaps} dropped {self.sub.dropped}")
+        if self.param("count") and n >= self.param("count"):
+            print(f"done {n} gaps {self.sub.gaps}")
+            self.shutdown("got all")
+
+
+def main(argv=None):
+    return run_node(Listener, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
