@@ -40,6 +40,7 @@ class RailState:
     v_mm_s: float = 0.0
     anchor_mm: float = 0.0
     actuator_mm: float = 0.0
+    contact_disp_mm: float = 0.0      # locked pre-slip displacement (Mindlin-Deresiewicz memory)
     sliding: bool = False
     segments: list = field(default_factory=list)
 
@@ -54,15 +55,20 @@ def _delta(q: float, mu_fn: float, dmax: float) -> float:
     return math.copysign(dmax * (1.0 - s ** (2.0 / 3.0)), q)
 
 
-def solve_stick(anchor: float, u: float, k: float, mu_fn: float, dmax: float) -> tuple[int, float]:
-    """Return (0, y) when the contact sticks at y solving y = anchor + delta(k (u - y)),
-    else (+1, nan) for forward gross slip or (-1, nan) for backward gross slip."""
+def solve_stick(anchor: float, u: float, k: float, mu_fn: float, dmax: float,
+                locked: float = -math.inf) -> tuple[int, float]:
+    """Return (0, y) when the contact sticks at y solving y = anchor + max(locked, delta(k (u - y))),
+    else (+1, nan) for forward gross slip or (-1, nan) for backward gross slip.
+
+    `locked` is the displacement the contact already holds: a rise of F_N grows the stick
+    region with zero traction, so the contact does not spring back (Mindlin-Deresiewicz,
+    simplified to a forward ratchet)."""
     if mu_fn <= 0.0:
         return (0, u) if u == anchor else (1 if u > anchor else -1, math.nan)
     y_lo = u - mu_fn / k          # Q = +mu F_N
     y_hi = u + mu_fn / k          # Q = -mu F_N
-    g_lo = y_lo - anchor - dmax
-    g_hi = y_hi - anchor + dmax
+    g_lo = y_lo - anchor - max(locked, dmax)
+    g_hi = y_hi - anchor - max(locked, -dmax)
     if g_lo > 0.0:
         return 1, math.nan
     if g_hi < 0.0:
@@ -71,7 +77,7 @@ def solve_stick(anchor: float, u: float, k: float, mu_fn: float, dmax: float) ->
         return 0, y_lo            # exactly at the limit: stuck with s = 0
     if g_hi == 0.0:
         return 0, y_hi
-    y = brentq(lambda y: y - anchor - _delta(k * (u - y), mu_fn, dmax), y_lo, y_hi,
+    y = brentq(lambda y: y - anchor - max(locked, _delta(k * (u - y), mu_fn, dmax)), y_lo, y_hi,
                xtol=1e-13, rtol=4 * np.finfo(float).eps, maxiter=200)
     return 0, y
 
@@ -117,13 +123,15 @@ def step_rail(st: RailState, *, normal_force_n: float, mu_s: float, mu_k: float,
     st.segments = []
     for _ in range(max_events):
         if not st.sliding:
-            direction, y = solve_stick(st.anchor_mm, u, k, fs_lim, dmax)
+            direction, y = solve_stick(st.anchor_mm, u, k, fs_lim, dmax, st.contact_disp_mm)
             if direction == 0:
                 st.y_mm, st.v_mm_s = y, 0.0
+                st.contact_disp_mm = y - st.anchor_mm
                 st.segments.append(Segment(t, period_s, y))
                 break
             # the contact reaches full deformation, then the whole patch slides
-            st.y_mm = st.anchor_mm + direction * dmax if fs_lim > 0 else st.y_mm
+            if fs_lim > 0:
+                st.y_mm = st.anchor_mm + (max(st.contact_disp_mm, dmax) if direction > 0 else -dmax)
             st.v_mm_s = 0.0
             st.sliding = True
         direction = math.copysign(1.0, st.v_mm_s) if st.v_mm_s != 0.0 else math.copysign(1.0, u - st.y_mm)
@@ -142,7 +150,8 @@ def step_rail(st: RailState, *, normal_force_n: float, mu_s: float, mu_k: float,
         q = k * (u - st.y_mm)
         if abs(q) <= fs_lim:
             st.sliding = False
-            st.anchor_mm = st.y_mm - _delta(q, fs_lim, dmax)
+            st.contact_disp_mm = _delta(q, fs_lim, dmax)
+            st.anchor_mm = st.y_mm - st.contact_disp_mm
     else:
         raise SimulationError(f"step {step}: more than {max_events} stick/slide switches in one period "
                               f"(F_N={normal_force_n} N, mu_s={mu_s}, mu_k={mu_k}, damping ratio={zeta})")
