@@ -147,6 +147,11 @@ class BagWriter:
             data=encode(msg) if body is None else body)
         self.counts[topic] = self.counts.get(topic, 0) + 1
 
+    @property
+    def closed(self) -> bool:
+        """True once the file is finished (or failed to finish) and closed."""
+        return self._file is None
+
     def flush(self) -> None:
         """Writes buffered messages to the OS (the file stays unfinished until close)."""
         if self._file is not None:
