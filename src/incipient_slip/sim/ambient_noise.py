@@ -4,6 +4,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
+from .sos import sosfilt_state
+
 
 class AmbientNoise:
     """Low-pass filtered machine noise (rms_pa) plus white sensor noise (sensor_noise_pa), in Pa."""
@@ -17,5 +19,5 @@ class AmbientNoise:
 
     def __call__(self, rng: np.random.Generator, n: int) -> np.ndarray:
         w = rng.standard_normal((2, n))
-        y, self.zi = signal.sosfilt(self.sos, w[0], zi=self.zi)
+        y, self.zi = sosfilt_state(self.sos, w[0], self.zi)
         return y * self.scale + w[1] * self.sensor_pa

@@ -26,8 +26,17 @@ class Electrodes:
     def __init__(self, p: dict):
         self.p = p
         self.drift = np.zeros(19)
+        self.pos = np.asarray(p["positions_mm"], float)
+        self.center = np.asarray(p["contact_center_mm"], float)
+        self.h2 = p["fluid_depth_mm"] ** 2
 
     def __call__(self, rng: np.random.Generator, n: int, normal_force_kpa: float, a_mm: float, shift_mm: float) -> np.ndarray:
         self.drift += rng.standard_normal(19) * self.p["drift_counts_per_period"]
-        mean = electrode_counts_mean(self.p, normal_force_kpa, a_mm, shift_mm) + self.drift
+        p = self.p
+        d = self.pos - self.center
+        d[:, 0] -= p["displacement_coupling"] * shift_mm
+        r2 = np.einsum("ij,ij->i", d, d)
+        w2 = a_mm * a_mm + self.h2
+        z_kohm = p["baseline_kohm"] * (1.0 + p["kpa_sensitivity"] * normal_force_kpa * (w2 / (w2 + r2)) ** 1.5)
+        mean = 4095.0 / (1.0 + z_kohm / 10.0) + self.drift      # = electrode_counts_mean(...) + drift
         return mean + rng.standard_normal((n, 19)) * self.p["noise_counts"]

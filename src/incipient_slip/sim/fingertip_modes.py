@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
+from .sos import sosfilt_state
+
 
 def mode_state(p: dict, a_mm: float, stick_ratio: float, material_damping: float = 0.0):
     """Return (freq_hz, damping_ratio) arrays of the modes for contact radius a and load ratio s."""
@@ -46,5 +48,5 @@ class ModalPath:
 
     def __call__(self, x: np.ndarray, a_mm: float, stick_ratio: float, material_damping: float = 0.0) -> np.ndarray:
         sos = mode_sos(self.p, *mode_state(self.p, a_mm, stick_ratio, material_damping), self.fs)
-        y, self.zi = signal.sosfilt(sos, x, zi=self.zi)
+        y, self.zi = sosfilt_state(sos, x, self.zi)
         return y

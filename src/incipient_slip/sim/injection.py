@@ -4,6 +4,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
+from .sos import sosfilt_state
+
 
 def band_sos(p: dict, fs_hz: float) -> np.ndarray:
     """Return the injection band filter as second-order sections (high-pass at band_low_hz,
@@ -28,5 +30,5 @@ class BandFilter:
         self.zi = np.zeros((sos.shape[0], 2))
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        y, self.zi = signal.sosfilt(self.sos, x, zi=self.zi)
+        y, self.zi = sosfilt_state(self.sos, x, self.zi)
         return y

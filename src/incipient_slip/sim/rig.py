@@ -106,6 +106,7 @@ class Rig:
         self.modes = ModalPath(p["fingertip_modes"], self.fs) if has("fingertip_modes") else None
         self.ambient = AmbientNoise(p["ambient_noise"], self.fs) if has("ambient_noise") else None
         self.electrodes = Electrodes(p["electrodes"]) if has("electrodes") else None
+        self.n_slow_cols = has("electrodes") or has("pdc") or has("temperature")
         self.pzt_on = has("injection")
         self.pzt_db = scene.injection_db
 
@@ -150,9 +151,9 @@ class Rig:
             if self.rail.sliding or not in_contact:
                 s_ratio, sar = 0.0, 0.0
             else:
-                s_ratio = float(partial_slip.load_ratio_stick(q, mu_fn))
-                sar = float(partial_slip.stick_area_ratio(s_ratio))
-        shift = float(partial_slip.displacement_mm(q, mu_fn, dmax)) if mu_fn > 0 else 0.0
+                s_ratio = min(1.0, max(0.0, 1.0 - abs(q) / mu_fn))     # partial_slip.load_ratio_stick
+                sar = s_ratio ** (2.0 / 3.0)                            # partial_slip.stick_area_ratio
+        shift = self.rail.contact_disp_mm if in_contact else 0.0
         t0 = k_step * self.period_s
 
         pac = None
@@ -178,18 +179,23 @@ class Rig:
             if not np.all(np.isfinite(x)):
                 raise SimulationError(f"step {k_step}: non-finite P_AC (F_N={fn_kpa} kPa, s={s_ratio})")
             pac = adc.pac_to_counts(x, p["adc"]["pac_pa_per_count"], p["adc"]["pac_range_pa"])
-        full = int(p["adc"]["full_scale_counts"])
-        elec = None
-        if self.electrodes is not None:
-            elec = adc.to_uint12(self.electrodes(self.rng["electrodes"], self.n_slow, fn_kpa if in_contact else 0.0,
-                                                 a_mm, shift), full)
-        pdc = None
-        if self.scene.has("pdc"):
-            pdc = adc.to_uint12(pdc_counts(self.rng["pdc"], self.n_slow, fn_kpa, p["pdc"], p["adc"]["pdc_pa_per_count"]), full)
-        tac = tdc = None
-        if self.scene.has("temperature"):
-            tac, tdc = temperature_counts(self.rng["temperature"], self.n_slow, p["temperature"])
-            tac, tdc = adc.to_uint12(tac, full), adc.to_uint12(tdc, full)
+        # slow channels share one 12-bit conversion: columns E1..E19, P_DC, T_AC, T_DC
+        elec = pdc = tac = tdc = None
+        if self.n_slow_cols:
+            slow = np.empty((self.n_slow, 22))
+            if self.electrodes is not None:
+                slow[:, :19] = self.electrodes(self.rng["electrodes"], self.n_slow, fn_kpa if in_contact else 0.0, a_mm, shift)
+            if self.scene.has("pdc"):
+                slow[:, 19] = pdc_counts(self.rng["pdc"], self.n_slow, fn_kpa, p["pdc"], p["adc"]["pdc_pa_per_count"])
+            if self.scene.has("temperature"):
+                slow[:, 20], slow[:, 21] = temperature_counts(self.rng["temperature"], self.n_slow, p["temperature"])
+            slow = adc.to_uint12(slow, int(p["adc"]["full_scale_counts"]))
+            if self.electrodes is not None:
+                elec = slow[:, :19].copy()
+            if self.scene.has("pdc"):
+                pdc = slow[:, 19].copy()
+            if self.scene.has("temperature"):
+                tac, tdc = slow[:, 20].copy(), slow[:, 21].copy()
         mt = my = None
         if self.scene.has("mocap"):
             tt = np.arange(self.n_mocap) / p["timing"]["mocap_rate_hz"]
