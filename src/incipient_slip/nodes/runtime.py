@@ -45,7 +45,6 @@ POLL_S = 0.1              # longest a loop blocks before it looks at the stop fl
 LINGER_MS = 500           # longest close() waits to flush queued messages
 HWM = 100_000             # per-peer queue, messages; P_AC at 100 frames/s is tiny beside it
 HEARTBEAT_S = 1.0
-_DRAIN_MAX = 1000         # messages handled per wake-up before timers get a turn
 _LOG_EVERY_S = 1.0        # rate limit of repeated warnings (malformed frames, callback errors)
 
 
@@ -227,9 +226,8 @@ class Node:
         self._sub = self._ctx.socket(zmq.SUB)
         self._sub.setsockopt(zmq.RCVHWM, HWM)
         self._sub.setsockopt(zmq.LINGER, 0)
-        self._poller = zmq.Poller()
-        self._poller.register(self._sub, zmq.POLLIN)
-        self._poller.register(self._xpub, zmq.POLLIN)
+        self._sub_recv = self._sub.recv_multipart
+        self._rcvtimeo = -1
         self._info = bus.NodeInfo(self.name, os.getpid(), endpoint, started_ns=time.time_ns())
         self._discovery = bus.Discovery(self._dir)
         self._connected: set[str] = set()
@@ -344,21 +342,28 @@ class Node:
         return self.exit_code
 
     def spin_once(self, timeout_s: float = POLL_S) -> None:
-        """Waits at most `timeout_s` for messages, handles them and any due timers."""
+        """Waits at most `timeout_s` for one message, handles it and any due timers."""
+        # Hot path: one blocking recv with a receive timeout (no poller, no EAGAIN per message)
+        # is what a raw pyzmq loop does; XPUB subscription news is read at discovery ticks.
         now = time.monotonic()
         if now >= self._next_scan:
             self._discover()
+            self._drain_xpub()
             now = time.monotonic()
         wait = min(timeout_s, self._next_scan - now)
         timers = self._timers
         if timers:
             wait = min(wait, timers[0].due - now)
-        events = self._poller.poll(max(0.0, wait) * 1000.0) if wait > 0 else self._poller.poll(0)
-        for sock, _ in events:
-            if sock is self._sub:
-                self._drain_sub()
-            else:
-                self._drain_xpub()
+        ms = max(0, int(wait * 1000.0 + 0.999))
+        if ms != self._rcvtimeo:
+            self._sub.setsockopt(zmq.RCVTIMEO, ms)
+            self._rcvtimeo = ms
+        try:
+            frames = self._sub_recv()
+        except zmq.Again:
+            frames = None
+        if frames is not None:
+            self._handle(frames)
         if timers and timers[0].due <= time.monotonic():
             self._run_timers()
 
@@ -397,38 +402,28 @@ class Node:
                     pass
                 self._connected.discard(endpoint)
 
-    def _drain_sub(self) -> None:
-        recv = self._sub.recv_multipart
-        subs = self._subs
-        raw_subs = self._raw_subs
-        for _ in range(_DRAIN_MAX):
+    def _handle(self, frames: list) -> None:
+        recv_ns = time.time_ns()
+        if len(frames) == 2 and frames[0][-1:] == b"\0":
+            raw_topic, body = frames
             try:
-                frames = recv(zmq.NOBLOCK)
-            except zmq.Again:
-                return
-            recv_ns = time.time_ns()
-            if len(frames) == 2 and frames[0][-1:] == b"\0":
-                raw_topic, body = frames
-                try:
-                    topic = raw_topic[:-1].decode()
-                except UnicodeDecodeError:
-                    topic = None
-            else:
+                topic = raw_topic[:-1].decode()
+            except UnicodeDecodeError:
                 topic = None
-            if topic is None:
-                self.malformed += 1
-                try:
-                    M.split_frames(frames)
-                except M.MessageError as exc:
-                    self._warn_limited("frames", f"dropped malformed frames: {exc}")
-                continue
-            for sub in subs.get(topic, ()):
-                sub._deliver(body, recv_ns)
-            for raw in raw_subs:
-                if raw.topic == "" or raw.topic == topic:
-                    raw._deliver_raw(topic, body, recv_ns)
-            if self._stop:
-                return
+        else:
+            topic = None
+        if topic is None:
+            self.malformed += 1
+            try:
+                M.split_frames(frames)
+            except M.MessageError as exc:
+                self._warn_limited("frames", f"dropped malformed frames: {exc}")
+            return
+        for sub in self._subs.get(topic, ()):
+            sub._deliver(body, recv_ns)
+        for raw in self._raw_subs:
+            if raw.topic == "" or raw.topic == topic:
+                raw._deliver_raw(topic, body, recv_ns)
 
     def _drain_xpub(self) -> None:
         counts = self._sub_counts
