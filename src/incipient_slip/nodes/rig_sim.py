@@ -1,0 +1,328 @@
+"""rig_sim: the simulated rig behind the topics of the four device nodes.
+
+    python -m incipient_slip.nodes.rig_sim scene:=paper material:=pla seed:=7
+
+Each 500 ms period k is one `sim.Rig.step_period` call (the same call the in-process data set
+generator makes) and goes out as 50 `BiotacPac`, 50 `BiotacSlow`, 60 `ObjectPose`, one
+`RobotState` (the F_N applied) and one `ActuatorState(step_index=k)` stamped at the period's
+end, in stamp order, all with sim stamps (docs/design.md, "Time base"). Only the streams of the
+scene's effects are published: no P_AC without a vibration effect, no `BiotacSlow` without
+electrodes / P_DC / temperature, no `ObjectPose` without mocap, no `PztState` without injection.
+
+Stamps: P_AC frame j at its last sample, round((22 j + 21) 1e9 / 2200) ns; slow frame j at its
+sample, j * 10 ms (as `models.features` cuts windows); mocap at its sample time; `RobotState`
+at the period start, `ActuatorState` at its end. The runtime reads stamp 0 as "stamp me now",
+so a message due at t = 0 is stamped 1 ns (within every consumer's half-sample tolerance).
+
+Protocols: `closed_loop` applies the F_N of `/grip/command` (`normal_force_kpa` before the first
+command; `hold=True` keeps the current force); `collection` redraws F_N each period exactly as
+`sim.protocols.collection_forces_kpa(seed, steps)`. `seed` is the rig's own seed (series i of
+a data set is `sim.rig.series_seed(dataset_seed, i)`). `/pzt/command` switches the injection
+from the next period on; `injection_db` (default: the scene's) sets it at the start.
+
+`lockstep: true`: before period 0 it waits until every topic it publishes has
+`wait_subscribers` subscribers (XPUB handshake), then starts period k+1 only when
+`GripCommand(period=k)` has arrived (in `collection` the command is only the go-ahead, its
+force is not used). No command within `lockstep_timeout_s` (wall clock; 0 waits forever) is a
+fault: the node exits 3 naming the period. `lockstep: false`: real time x `realtime_factor`,
+each message released when its stamp is due, the latest command applies to the next period.
+
+After `steps` periods it publishes nothing more and idles until SIGTERM (the supervisor ends a
+run), or exits 0 when `exit_when_done`.
+"""
+from __future__ import annotations
+
+import time
+from collections import deque
+
+import numpy as np
+
+from incipient_slip import control
+from incipient_slip.messages import (
+    ActuatorState, BiotacPac, BiotacSlow, GripCommand, ObjectPose, PztCommand, PztState,
+    RobotState,
+)
+from incipient_slip.nodes.params import ParamError
+from incipient_slip.nodes.runtime import Node, run_node
+from incipient_slip.sim.protocols import collection_forces_kpa
+from incipient_slip.sim.rig import PeriodOutput, Rig
+from incipient_slip.sim.scene import SceneError, load_scene
+
+PROTOCOLS = ("closed_loop", "collection")
+PERIOD_NS = 500_000_000
+PAC_RATE_HZ = 2200
+PAC_FRAME = 22
+FRAMES_PER_PERIOD = 50
+SLOW_FRAME_NS = 10_000_000
+EXIT_FAULT = 3
+_IDENTITY_XYZW = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def pac_frame_stamps_ns(k: int) -> np.ndarray:
+    """Return the stamps of the 50 P_AC frames of period k: each at its last sample (ns)."""
+    last = (np.arange(FRAMES_PER_PERIOD, dtype=np.int64) + FRAMES_PER_PERIOD * k) * PAC_FRAME + PAC_FRAME - 1
+    return (last * 2_000_000_000 + PAC_RATE_HZ) // (2 * PAC_RATE_HZ)   # round(i * 1e9 / 2200)
+
+
+def slow_frame_stamps_ns(k: int) -> np.ndarray:
+    """Return the stamps of the 50 slow frames of period k: each at its sample, j * 10 ms."""
+    return (np.arange(FRAMES_PER_PERIOD, dtype=np.int64) + FRAMES_PER_PERIOD * k) * SLOW_FRAME_NS
+
+
+class RigSim(Node):
+    """Steps the simulated rig one period at a time and publishes what the devices would."""
+
+    PARAMS = {
+        "scene": "paper",
+        "material": "",                   # "": the scene's first material
+        "seed": 0,
+        "protocol": "closed_loop",
+        "normal_force_kpa": control.DEFAULT_INITIAL_FORCE_KPA,   # F_N before the first command
+        "injection_db": None,             # None: the scene's injection_db
+        "steps": 450,
+        "lockstep": True,
+        "lockstep_timeout_s": 30.0,
+        "realtime_factor": 1.0,
+        "wait_subscribers": 1,
+        "wait_timeout_s": 10.0,
+        "exit_when_done": False,
+    }
+
+    def __init__(self, **kwargs):
+        super().__init__("rig_sim", **kwargs)
+        try:
+            scene = load_scene(self.param("scene"))
+        except SceneError as exc:        # run_node reports a ParamError in one line, exit 2
+            raise ParamError(f"node {self.name!r}: parameter 'scene': {exc}") from None
+        material = self.param("material") or scene.materials[0]
+        if material not in scene.materials:
+            raise ParamError(f"node {self.name!r}: parameter 'material' = {material!r} is not in "
+                             f"scene {scene.name!r} ({', '.join(scene.materials)})")
+        self.protocol = self.param("protocol")
+        if self.protocol not in PROTOCOLS:
+            raise ParamError(f"node {self.name!r}: parameter 'protocol' = {self.protocol!r}; "
+                             f"expected one of {', '.join(PROTOCOLS)}")
+        if not self.param("realtime_factor") > 0:
+            raise ParamError(f"node {self.name!r}: realtime_factor must be > 0")
+        self.steps = self.param("steps")
+        self.rig = Rig(scene, material, self.param("seed"))
+        if self.param("injection_db") is not None and scene.has("injection"):
+            self.rig.set_injection(True, float(self.param("injection_db")))
+        self.forces = (collection_forces_kpa(self.rig.seed, self.steps)
+                       if self.protocol == "collection" else None)
+        self.force_kpa = float(self.param("normal_force_kpa"))
+        self.lockstep = self.param("lockstep")
+        p = scene.params
+        self.pac_pa_per_count = float(p["adc"]["pac_pa_per_count"])
+        self.pdc_pa_per_count = float(p["adc"]["pdc_pa_per_count"])
+        self.pdc_tare = int(round(p["pdc"]["baseline_counts"])) if scene.has("pdc") else 0
+
+        has = scene.has
+        self.pac_pub = self.create_publisher(BiotacPac) if self.rig.has_pac else None
+        self.slow_pub = (self.create_publisher(BiotacSlow)
+                         if has("electrodes") or has("pdc") or has("temperature") else None)
+        self.pose_pub = self.create_publisher(ObjectPose) if has("mocap") else None
+        self.pzt_pub = self.create_publisher(PztState) if has("injection") else None
+        self.robot_pub = self.create_publisher(RobotState)
+        self.tick_pub = self.create_publisher(ActuatorState)
+        self.create_subscription(GripCommand, self.on_grip)
+        self.create_subscription(PztCommand, self.on_pzt)
+
+        self.k = 0                        # next period to simulate
+        self.waiting_since = None         # lock-step: wall time we began waiting for period k-1
+        self.queue: deque = deque()       # real time: (stamp_ns, publisher, message) not yet due
+        self.t0 = None
+        self.sim_s = 0.0                  # seconds spent in step_period + publishing (cost report)
+        self.pzt_state = None
+        self.done = False
+
+    # --- the run -------------------------------------------------------------------------------
+
+    def spin(self) -> int:
+        """Waits for subscribers, runs the first period, then serves commands until shutdown."""
+        self.wait_for_subscribers()
+        if not self.stopping:
+            self.log(f"scene {self.rig.scene.name}, material {self.rig.material}, seed "
+                     f"{self.rig.seed}, {self.protocol}, {'lock-step' if self.lockstep else 'real time'}")
+            self.publish_pzt_state()
+            if self.lockstep:
+                self.create_timer(0.05, self.check_lockstep_timeout)
+                self.advance()
+            else:
+                self.t0 = time.monotonic()
+                self.create_timer(min(0.01, 0.01 / self.param("realtime_factor")), self.release_due)
+                self.release_due()
+        return super().spin()
+
+    def wait_for_subscribers(self) -> None:
+        n, timeout = self.param("wait_subscribers"), self.param("wait_timeout_s")
+        if n <= 0:
+            return
+        deadline = time.monotonic() + timeout
+        pubs = [pub for pub in (self.pac_pub, self.slow_pub, self.pose_pub, self.pzt_pub,
+                                self.robot_pub, self.tick_pub) if pub is not None]
+        lonely = [pub.topic for pub in pubs
+                  if not pub.wait_for_subscribers(n, max(0.0, deadline - time.monotonic()))]
+        if lonely and not self.stopping:
+            self.warn(f"fewer than {n} subscriber(s) after {timeout} s on {', '.join(lonely)}; "
+                      "starting anyway")
+
+    def step(self) -> PeriodOutput | None:
+        """Simulates period self.k at the current force; None (and a fault exit) on a sim error."""
+        force = float(self.forces[self.k]) if self.forces is not None else self.force_kpa
+        try:
+            return self.rig.step_period(force)
+        except (ValueError, ArithmeticError) as exc:   # SimulationError is a ValueError
+            self.warn(f"period {self.k}: the simulator failed at F_N = {force} kPa: {exc}")
+            self.shutdown(f"simulator error in period {self.k}", EXIT_FAULT)
+            return None
+
+    def advance(self) -> None:
+        """Lock-step: simulate and publish period k, then wait for GripCommand(period=k)."""
+        t = time.perf_counter()
+        out = self.step()
+        if out is None:
+            return
+        for _, pub, msg in self.period_messages(out):
+            pub.publish(msg)
+        self.sim_s += time.perf_counter() - t
+        self.k += 1
+        self.waiting_since = time.monotonic()
+        if self.k >= self.steps:
+            self.finish()
+
+    def release_due(self) -> None:
+        """Real time: publish every message whose stamp is due; simulate periods as they start."""
+        if self.done:
+            return
+        now_ns = int((time.monotonic() - self.t0) * self.param("realtime_factor") * 1e9)
+        while True:
+            if not self.queue:
+                if self.k >= self.steps:
+                    self.finish()
+                    return
+                if now_ns < self.k * PERIOD_NS:
+                    return
+                t = time.perf_counter()
+                out = self.step()
+                if out is None:
+                    return
+                self.queue.extend(self.period_messages(out))
+                self.sim_s += time.perf_counter() - t
+                self.k += 1
+            while self.queue and self.queue[0][0] <= now_ns:
+                _, pub, msg = self.queue.popleft()
+                pub.publish(msg)
+            if self.queue:
+                return
+
+    def finish(self) -> None:
+        self.done = True
+        self.waiting_since = None
+        per_ms = 1e3 * self.sim_s / max(self.k, 1)
+        self.log(f"ran {self.k} periods; {per_ms:.2f} ms per period (simulate + publish)")
+        if self.param("exit_when_done"):
+            self.shutdown(f"{self.k} periods done")
+
+    # --- commands ------------------------------------------------------------------------------
+
+    def on_grip(self, msg: GripCommand) -> None:
+        if self.protocol == "closed_loop" and not msg.hold:
+            new_force = msg.normal_force_kpa
+        else:
+            new_force = self.force_kpa
+        if not self.lockstep:
+            self.force_kpa = new_force
+            return
+        if self.done or msg.period != self.k - 1:
+            self._warn_limited(("grip", "period"), f"ignored GripCommand for period {msg.period}: "
+                               f"waiting for period {self.k - 1}" if not self.done else
+                               f"ignored GripCommand for period {msg.period}: all {self.steps} periods done")
+            return
+        self.force_kpa = new_force
+        self.advance()
+
+    def on_pzt(self, msg: PztCommand) -> None:
+        try:
+            self.rig.set_injection(msg.enabled, msg.intensity_db)
+        except ValueError as exc:
+            self._warn_limited(("pzt", "bad"), f"ignored PztCommand: {exc}")
+            return
+        self.publish_pzt_state()
+
+    def publish_pzt_state(self) -> None:
+        if self.pzt_pub is None:
+            return
+        state = (self.rig.pzt_on, self.rig.pzt_db)
+        if state == self.pzt_state:
+            return
+        self.pzt_state = state
+        p = self.rig.p["injection"]
+        self.pzt_pub.publish(PztState(enabled=state[0], intensity_db=state[1],
+                                      band_low_hz=float(p["band_low_hz"]),
+                                      band_high_hz=float(p["band_high_hz"]),
+                                      stamp_ns=max(self.k * PERIOD_NS, 1)))
+
+    def check_lockstep_timeout(self) -> None:
+        timeout = self.param("lockstep_timeout_s")
+        if self.waiting_since is None or timeout <= 0:
+            return
+        if time.monotonic() - self.waiting_since > timeout:
+            self.warn(f"lock-step: no GripCommand(period={self.k - 1}) within {timeout} s "
+                      "(is the grip controller running?)")
+            self.shutdown(f"lock-step timeout after period {self.k - 1}", EXIT_FAULT)
+
+    # --- one period as messages ----------------------------------------------------------------
+
+    def period_messages(self, out: PeriodOutput) -> list:
+        """Return [(stamp_ns, publisher, message)] of one period, in stamp order."""
+        k = out.period_index
+        items = []
+        if self.pac_pub is not None and out.pac_counts is not None:
+            frames = out.pac_counts.reshape(FRAMES_PER_PERIOD, PAC_FRAME)
+            pa = self.pac_pa_per_count
+            for j, stamp in enumerate(pac_frame_stamps_ns(k).tolist()):
+                items.append((stamp, self.pac_pub,
+                              BiotacPac(pac_counts=frames[j], pa_per_count=pa, stamp_ns=stamp)))
+        if self.slow_pub is not None:
+            items += self.slow_messages(out, k)
+        if self.pose_pub is not None and out.mocap_y_mm is not None:
+            stamps = np.round(out.mocap_t_s * 1e9).astype(np.int64).tolist()
+            for stamp, y in zip(stamps, out.mocap_y_mm.tolist()):
+                stamp = max(stamp, 1)
+                items.append((stamp, self.pose_pub,
+                              ObjectPose(position_mm=np.array([0.0, y, 0.0]),
+                                         orientation_xyzw=_IDENTITY_XYZW, stamp_ns=stamp)))
+        start = max(k * PERIOD_NS, 1)
+        items.append((start, self.robot_pub,
+                      RobotState(normal_force_kpa=out.normal_force_kpa, stamp_ns=start)))
+        items.sort(key=lambda item: item[0])     # stable: P_AC before slow at equal stamps
+        end = (k + 1) * PERIOD_NS
+        items.append((end, self.tick_pub,
+                      ActuatorState(position_mm=out.actuator_mm, step_index=k, stamp_ns=end)))
+        return items
+
+    def slow_messages(self, out: PeriodOutput, k: int) -> list:
+        n = FRAMES_PER_PERIOD
+        zeros = np.zeros(n, dtype=np.uint16)
+        electrodes = (out.electrode_counts if out.electrode_counts is not None
+                      else np.zeros((n, 19), dtype=np.uint16))
+        pdc = (out.pdc_counts if out.pdc_counts is not None else zeros).tolist()
+        tac = (out.tac_counts if out.tac_counts is not None else zeros).tolist()
+        tdc = (out.tdc_counts if out.tdc_counts is not None else zeros).tolist()
+        items = []
+        for j, stamp in enumerate(slow_frame_stamps_ns(k).tolist()):
+            stamp = max(stamp, 1)
+            items.append((stamp, self.slow_pub, BiotacSlow(
+                electrode_counts=electrodes[j], pdc_counts=pdc[j], tac_counts=tac[j],
+                tdc_counts=tdc[j], pdc_pa_per_count=self.pdc_pa_per_count,
+                pdc_tare_counts=self.pdc_tare, stamp_ns=stamp)))
+        return items
+
+
+def main(argv=None):
+    return run_node(RigSim, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
