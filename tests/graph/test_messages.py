@@ -1,0 +1,141 @@
+"""The wire contract as properties: every type round-trips; bad bytes only raise MessageError."""
+from __future__ import annotations
+
+import dataclasses
+
+import msgpack
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from incipient_slip import messages as M
+
+TYPES = list(M.MESSAGE_TYPES.values())
+
+
+def _scalar(meta):
+    kind = meta["kind"]
+    if meta["choices"] is not None:
+        return st.sampled_from(meta["choices"])
+    if kind is bool:
+        return st.booleans()
+    if kind is str:
+        return st.text(max_size=40)
+    if kind is int:
+        low = -(1 << 63) if meta["low"] is None else meta["low"]
+        high = (1 << 64) - 1 if meta["high"] is None else meta["high"]
+        return st.integers(low, high)
+    return st.floats(meta["low"], meta["high"], allow_nan=not meta["finite"],
+                     allow_infinity=not meta["finite"] and meta["low"] is None and meta["high"] is None)
+
+
+def _array(spec):
+    shape = tuple(3 if n is None else n for n in spec.shape)
+    dtype = np.dtype(spec.dtype)
+    if dtype.kind == "f":
+        elements = st.floats(-1e12, 1e12, width=dtype.itemsize * 8)
+    else:
+        info = np.iinfo(dtype)
+        elements = st.integers(int(info.min), int(info.max))
+    return st.lists(elements, min_size=int(np.prod(shape)), max_size=int(np.prod(shape))).map(
+        lambda xs: np.array(xs, dtype=dtype).reshape(shape))
+
+
+def messages_of(cls):
+    """Strategy: valid messages of `cls`, every field drawn from its spec."""
+    fields = {}
+    for f in dataclasses.fields(cls):
+        fields[f.name] = _array(f.metadata["array"]) if "array" in f.metadata else _scalar(f.metadata)
+    return st.builds(cls, **fields)
+
+
+any_message = st.sampled_from(TYPES).flatmap(messages_of)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.data())
+@pytest.mark.parametrize("cls", TYPES, ids=lambda c: c.__name__)
+def test_every_type_round_trips_through_encode_and_decode(cls, data):
+    msg = data.draw(messages_of(cls))
+    body = M.encode(msg)
+    assert M.decode(body, cls) == msg
+    assert M.decode_any(body, cls.TOPIC) == msg
+
+
+@settings(max_examples=100, deadline=None)
+@given(any_message)
+def test_fast_decoder_agrees_with_full_validator(msg):
+    body = M.encode(msg)
+    obj = msgpack.unpackb(body, raw=False)
+    assert M._validate_fields(type(msg), obj, "/t") == M.decode(body, type(msg), "/t")
+
+
+@settings(max_examples=60, deadline=None)
+@given(any_message, st.integers(0, (1 << 64) - 1), st.integers(0, (1 << 64) - 1))
+def test_encode_overrides_stamp_and_seq(msg, stamp, seq):
+    out = M.decode(M.encode(msg, stamp_ns=stamp, seq=seq), type(msg))
+    assert (out.stamp_ns, out.seq) == (stamp, seq)
+    assert out == msg.replace(stamp_ns=stamp, seq=seq)
+
+
+def test_topic_frames_are_exact():
+    assert M.split_frames([M.topic_frame("/biotac/pac"), b"x"]) == ("/biotac/pac", b"x")
+    assert not M.topic_frame("/biotac/pac_raw").startswith(M.topic_frame("/biotac/pac"))
+
+
+def _decode_only_message_error(body: bytes, cls=M.BiotacPac):
+    for fn in (lambda: M.decode(body, cls), lambda: M.decode_any(body)):
+        try:
+            fn()
+        except M.MessageError as exc:
+            assert exc.topic and exc.field and exc.reason
+        # a mutation may leave a valid message: that is fine too
+
+
+@settings(max_examples=300, deadline=None)
+@given(any_message, st.data())
+def test_truncated_bodies_raise_only_message_error(msg, data):
+    body = M.encode(msg)
+    cut = data.draw(st.integers(0, len(body) - 1))
+    with pytest.raises(M.MessageError):
+        M.decode_any(body[:cut])
+
+
+@settings(max_examples=500, deadline=None)
+@given(any_message, st.data())
+def test_mutated_bodies_raise_only_message_error(msg, data):
+    body = bytearray(M.encode(msg))
+    for _ in range(data.draw(st.integers(1, 4))):
+        i = data.draw(st.integers(0, len(body) - 1))
+        body[i] = data.draw(st.integers(0, 255))
+    _decode_only_message_error(bytes(body), type(msg))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=300))
+def test_random_bytes_raise_only_message_error(body):
+    _decode_only_message_error(body)
+
+
+@settings(max_examples=200, deadline=None)
+@given(any_message, st.sampled_from([None, True, -1, 1.5, "x", b"\x00", [1], {"a": 1}, (1 << 64) - 1, -(1 << 63),
+                                     float("nan"), float("inf")]), st.data())
+def test_wrong_field_values_raise_only_message_error(msg, bad, data):
+    obj = msgpack.unpackb(M.encode(msg), raw=False)
+    key = data.draw(st.sampled_from(sorted(obj)))
+    obj[key] = bad
+    _decode_only_message_error(msgpack.packb(obj, use_bin_type=True), type(msg))
+
+
+def test_oversized_body_is_rejected_by_size_before_parsing():
+    with pytest.raises(M.MessageError, match="exceeds"):
+        M.decode(b"\x00" * (M.MAX_BODY_BYTES + 1), M.BiotacPac)
+
+
+def test_wrong_dtype_names_topic_and_field():
+    obj = msgpack.unpackb(M.encode(M.BiotacPac(pac_counts=np.zeros(22))), raw=False)
+    obj["pac_counts"]["dtype"] = "<f8"
+    with pytest.raises(M.MessageError) as info:
+        M.decode(msgpack.packb(obj), M.BiotacPac, "/biotac/pac")
+    assert (info.value.topic, info.value.field) == ("/biotac/pac", "pac_counts")
