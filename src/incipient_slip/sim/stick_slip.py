@@ -67,8 +67,12 @@ def solve_stick(anchor: float, u: float, k: float, mu_fn: float, dmax: float,
         return (0, u) if u == anchor else (1 if u > anchor else -1, math.nan)
     y_lo = u - mu_fn / k          # Q = +mu F_N
     y_hi = u + mu_fn / k          # Q = -mu F_N
-    g_lo = y_lo - anchor - max(locked, dmax)
-    g_hi = y_hi - anchor - max(locked, -dmax)
+
+    def g(y: float) -> float:
+        return y - anchor - max(locked, _delta(k * (u - y), mu_fn, dmax))
+
+    # decide with the same function the root finder sees, so rounding cannot break the bracket
+    g_lo, g_hi = g(y_lo), g(y_hi)
     if g_lo > 0.0:
         return 1, math.nan
     if g_hi < 0.0:
@@ -77,8 +81,7 @@ def solve_stick(anchor: float, u: float, k: float, mu_fn: float, dmax: float,
         return 0, y_lo            # exactly at the limit: stuck with s = 0
     if g_hi == 0.0:
         return 0, y_hi
-    y = brentq(lambda y: y - anchor - max(locked, _delta(k * (u - y), mu_fn, dmax)), y_lo, y_hi,
-               xtol=1e-13, rtol=4 * np.finfo(float).eps, maxiter=200)
+    y = brentq(g, y_lo, y_hi, xtol=1e-13, rtol=4 * np.finfo(float).eps, maxiter=200)
     return 0, y
 
 

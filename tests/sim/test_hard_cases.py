@@ -1,0 +1,144 @@
+"""Hard cases of the physics and numerics (issue 4, item 7): finite, bounded, physically ordered."""
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import signal
+
+from incipient_slip.sim import Rig, SimulationError, load_scene
+from incipient_slip.sim.partial_slip import displacement_mm, load_ratio_stick, stick_area_ratio
+from incipient_slip.sim.scene import scene_from_dict
+from incipient_slip.sim.sos import sosfilt_state
+from incipient_slip.sim.stick_slip import solve_stick
+
+FAST = settings(max_examples=60, deadline=None)
+
+
+@FAST
+@given(mu_fn=st.floats(0.01, 5.0), frac=st.lists(st.floats(0.0, 1.0), min_size=2, max_size=20))
+def test_stick_ratio_never_rises_as_q_rises(mu_fn, frac):
+    q = np.sort(np.array(frac)) * mu_fn
+    s = load_ratio_stick(q, mu_fn)
+    sar = stick_area_ratio(s)
+    d = displacement_mm(q, mu_fn, 1.5)
+    assert np.all(np.diff(s) <= 1e-12) and np.all(np.diff(sar) <= 1e-12)
+    assert np.all(np.diff(d) >= -1e-12) and np.all((d >= 0) & (d <= 1.5 + 1e-12))
+    assert np.all(sar >= s - 1e-12)  # (c/a)^2 = s^(2/3) >= s: the label and the truth differ
+
+
+@FAST
+@given(eps=st.floats(1e-18, 1e-3), dmax=st.floats(0.01, 3.0), k=st.floats(0.01, 100.0))
+def test_q_approaching_mu_fn_stays_finite_and_bounded(eps, dmax, k):
+    mu_fn = 1.0
+    # actuator placed so that the stuck solution sits within eps of the limit
+    u = mu_fn * (1 - eps) / k + dmax * (1 - eps ** (2 / 3))
+    direction, y = solve_stick(0.0, u, k, mu_fn, dmax)
+    if eps < 1e-10 and direction == 1:
+        return                    # within rounding of the limit either answer is right; no exception
+    assert direction == 0 and math.isfinite(y)
+    q = k * (u - y)
+    assert 0 <= q <= mu_fn * (1 + 1e-9) and -1e-12 <= y <= dmax + 1e-9
+
+
+def test_q_exactly_at_the_limit_sticks_with_zero_ratio():
+    k, mu_fn, dmax = 0.5, 1.0, 1.25   # binary-exact numbers: the limit is hit exactly
+    u = mu_fn / k + dmax              # y = dmax makes Q = mu F_N exactly
+    direction, y = solve_stick(0.0, u, k, mu_fn, dmax)
+    assert direction == 0 and y == pytest.approx(dmax)
+    assert load_ratio_stick(k * (u - y), mu_fn) == pytest.approx(0.0, abs=1e-12)
+    assert solve_stick(0.0, u + 1e-9, k, mu_fn, dmax)[0] == 1   # a hair more: gross slip
+
+
+def _scene(effects, **overrides):
+    return scene_from_dict({"effects": effects, "overrides": overrides}, "test-scene")
+
+
+ALL = ["contact", "stick_slip", "fingertip_modes", "injection", "vibrotactile", "ambient_noise",
+       "electrodes", "pdc", "temperature", "mocap", "adc"]
+
+
+@pytest.mark.parametrize("fn", [0.0, 1e-12, 1e-6])
+def test_no_contact_is_finite_with_zero_stick_ratio(fn):
+    rig = Rig(_scene(ALL), "pla", 0)
+    for _ in range(5):
+        out = rig.step_period(fn)
+    assert out.stick_area_ratio == 0.0 and math.isfinite(out.object_y_mm)
+    assert np.all(np.isfinite(out.mocap_y_mm))
+    # free object (no friction) is pulled towards the actuator, never past bounded overshoot
+    assert abs(out.object_y_mm - out.actuator_mm) < 1.0
+
+
+def test_very_stiff_spring_with_tiny_mass_is_exact_and_cheap():
+    scene = _scene(["contact", "stick_slip", "mocap"], stick_slip={"spring_n_per_mm": 1e4, "object_mass_kg": 1e-6})
+    rig = Rig(scene, "pla", 0)
+    ys = [rig.step_period(2.0).object_y_mm for _ in range(60)]
+    assert np.all(np.isfinite(ys)) and np.all(np.diff(ys) >= -1e-9)
+    assert max(ys) < 60 * 23 / 450 + 1e-6      # never ahead of the actuator
+
+
+def test_stick_slip_switch_at_every_step_stays_bounded():
+    rig = Rig(_scene(["contact", "stick_slip", "mocap"]), "nylon", 1)
+    for _ in range(150):          # pre-load the spring
+        rig.step_period(3.0)
+    # contact released every other period: slide, then re-grip (often mid-slide) at 5.9 kPa
+    outs = [rig.step_period(5.9 if k % 2 else 0.0) for k in range(120)]
+    ys = np.array([o.object_y_mm for o in outs])
+    slips = np.array([o.gross_slip for o in outs])
+    assert slips[::2].all()                               # slides at every released step
+    assert np.all(ys <= np.array([o.actuator_mm for o in outs]) + 1.0)   # bounded overshoot
+    assert np.all(np.isfinite(np.concatenate([o.mocap_y_mm for o in outs])))
+    assert all(0.0 <= o.stick_area_ratio <= 1.0 for o in outs)
+
+
+def test_band_edge_transfer_function_fails_where_sections_do_not():
+    fs, x = 2200.0, np.random.default_rng(0).standard_normal(50_000)
+    b, a = signal.butter(10, [10, 1000], btype="bandpass", fs=fs)
+    assert np.abs(np.roots(a)).max() > 1.0                 # rounding moved poles outside the unit circle
+    with np.errstate(all="ignore"):
+        y_tf = signal.lfilter(b, a, x)
+    sos = signal.butter(10, [10, 1000], btype="bandpass", fs=fs, output="sos")
+    y_sos, _ = sosfilt_state(sos, x, np.zeros((sos.shape[0], 2)))
+    assert not np.all(np.isfinite(y_tf)) or np.abs(y_tf).max() > 1e6
+    assert np.all(np.isfinite(y_sos)) and np.abs(y_sos).max() < 10
+    w, h = signal.sosfreqz(sos, worN=[10.0, 200.0], fs=fs)
+    assert abs(h[1]) == pytest.approx(1.0, abs=1e-3) and abs(h[0]) == pytest.approx(2 ** -0.5, abs=1e-2)
+
+
+def test_clipping_at_extreme_intensity_stays_in_range():
+    rig = Rig(load_scene("paper"), "pla", 0)
+    rig.set_injection(True, 40.0)
+    pac = np.concatenate([rig.step_period(3.0).pac_counts for _ in range(4)])
+    assert pac.dtype == np.int16
+    assert pac.max() == 2054 and pac.min() == -2054 and np.abs(pac).max() <= 2054
+
+
+def test_million_sample_run_has_no_drift_or_state_growth():
+    rig = Rig(_scene(["contact", "stick_slip", "fingertip_modes", "injection", "adc"]), "pla", 4)
+    pac, zmax = [], []
+    for _ in range(910):          # 910 x 1100 > 10^6 samples
+        pac.append(rig.step_period(3.0, actuator_step=False).pac_counts)
+        zmax.append(max(np.abs(rig.band.zi).max(), np.abs(rig.modes.zi).max()))
+    pac = np.concatenate(pac).astype(float)
+    assert pac.size >= 1_000_000
+    first, last = pac[: pac.size // 2], pac[pac.size // 2:]
+    assert abs(first.mean()) < 1.0 and abs(last.mean()) < 1.0
+    assert last.std() == pytest.approx(first.std(), rel=0.05)
+    assert max(zmax[-100:]) < 3 * max(zmax[:100])
+
+
+def test_non_finite_normal_force_is_an_error_naming_the_step():
+    rig = Rig(_scene(["contact", "stick_slip"]), "pla", 0)
+    rig.step_period(2.0)
+    with pytest.raises(ValueError, match="step 1: normal_force_kpa"):
+        rig.step_period(float("nan"))
+
+
+def test_runaway_switching_is_reported_with_its_step():
+    # undamped rail, equal static and kinetic friction and no contact: the event loop cannot settle
+    scene = _scene(["contact", "stick_slip"], stick_slip={"rail_damping_ratio": 0.0, "max_slide_events": 3})
+    rig = Rig(scene, "pla", 0)
+    rig.rail.actuator_mm = 5.0
+    with pytest.raises(SimulationError, match="step 0"):
+        rig.step_period(0.01)
