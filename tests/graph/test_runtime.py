@@ -1,0 +1,189 @@
+"""The node runtime over real ipc sockets: exact topics, gaps, params, remaps, fuzz, shutdown."""
+from __future__ import annotations
+
+import signal
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from incipient_slip import messages as M
+from incipient_slip.nodes import bus
+from incipient_slip.nodes.params import ParamError, parse_node_argv
+from incipient_slip.nodes.runtime import Node, run_node
+
+NODES = Path(__file__).parent / "nodes"
+
+
+def pac(i=0, **kw):
+    return M.BiotacPac(pac_counts=np.full(22, i, dtype=np.int16), **kw)
+
+
+def spin_until(nodes, cond, timeout_s=5.0):
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        assert time.monotonic() < deadline, "condition not met in time"
+        for n in nodes:
+            n.spin_once(0.01)
+
+
+def test_subscription_gets_messages_in_order_with_no_gap(graph):
+    with Node("a") as a, Node("b") as b:
+        got = []
+        pub = a.create_publisher(M.BiotacPac)
+        sub = b.create_subscription(M.BiotacPac, got.append)
+        assert pub.wait_for_subscribers(1, 5)
+        for i in range(50):
+            pub.publish(pac(i))
+        spin_until([b], lambda: len(got) == 50)
+        assert [m.seq for m in got] == list(range(50))
+        assert all(m.stamp_ns > 0 for m in got) and sub.gaps == 0
+
+
+def test_topic_match_is_exact_not_prefix(graph):
+    with Node("a") as a, Node("b") as b:
+        got = []
+        raw_pub = a.create_publisher(M.BiotacPac, "/biotac/pac_raw")
+        pub = a.create_publisher(M.BiotacPac)
+        b.create_subscription(M.BiotacPac, got.append)
+        assert pub.wait_for_subscribers(1, 5)
+        assert raw_pub.subscriber_count() == 0
+        raw_pub.publish(pac(1))
+        pub.publish(pac(2))
+        spin_until([b], lambda: len(got) == 1)
+        b.spin_once(0.05)
+        assert [int(m.pac_counts[0]) for m in got] == [2]
+
+
+def test_seq_gap_is_counted_and_reported(graph):
+    with Node("a") as a, Node("b") as b:
+        gaps = []
+        pub = a.create_publisher(M.BiotacPac)
+        sub = b.create_subscription(M.BiotacPac, lambda m: None, on_gap=lambda *g: gaps.append(g))
+        assert pub.wait_for_subscribers(1, 5)
+        for seq in (0, 1, 5, 6):
+            pub.publish(pac(seq=seq), keep_seq=True)
+        spin_until([b], lambda: sub.received == 4)
+        assert (sub.gaps, sub.missed, gaps) == (1, 3, [(1, 5)])
+
+
+def test_stamp_is_kept_when_set_and_remaps_change_topic(graph):
+    with Node("a", remaps={"/biotac/pac": "/sim/pac"}) as a, Node("b") as b:
+        got = []
+        pub = a.create_publisher(M.BiotacPac)
+        assert pub.topic == "/sim/pac"
+        b.create_subscription(M.BiotacPac, got.append, topic="/sim/pac")
+        assert pub.wait_for_subscribers(1, 5)
+        pub.publish(pac(stamp_ns=123))
+        spin_until([b], lambda: got)
+        assert got[0].stamp_ns == 123
+
+
+def test_params_defaults_then_launch_then_command_line():
+    class P(Node):
+        PARAMS = {"rate_hz": 100.0, "method": "injection", "n": 3}
+
+    args = parse_node_argv(["rate_hz:=50", "method:=e19", "/a:=/b", "__name:=x"])
+    assert (args.params, args.remaps, args.node_name) == ({"rate_hz": 50, "method": "e19"}, {"/a": "/b"}, "x")
+    node = P("p", params=args.params, raw_params=args.raw, heartbeat_s=0)
+    try:
+        assert node.params == {"rate_hz": 50.0, "method": "e19", "n": 3}
+        assert isinstance(node.param("rate_hz"), float)
+    finally:
+        node.close()
+    with pytest.raises(ParamError, match="known: method, n, rate_hz"):
+        P("p", params={"rate": 1})
+    with pytest.raises(ParamError, match="does not fit"):
+        P("p", params={"n": "three"})
+
+
+def test_timer_fires_and_shutdown_returns_exit_code(graph):
+    class T(Node):
+        def __init__(self, **kw):
+            super().__init__("t", **kw)
+            self.ticks = 0
+            self.create_timer(0.01, self.tick)
+
+        def tick(self):
+            self.ticks += 1
+            if self.ticks == 5:
+                self.shutdown("done", exit_code=3)
+
+    assert run_node(T, []) == 3
+
+
+def test_node_announces_itself_and_withdraws_on_close(graph):
+    node = Node("lonely")
+    node.create_subscription(M.SlipEstimate, lambda m: None)
+    (info,) = bus.scan(graph.dir)
+    assert (info.name, info.subscribes["/slip/estimate"]) == ("lonely", "SlipEstimate")
+    assert info.publishes == {"/heartbeat": "Heartbeat"}
+    node.close()
+    assert bus.scan(graph.dir) == []
+
+
+def _wait_announced(graph, name, timeout_s=10.0):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        for info in bus.scan(graph.dir):
+            if info.name == name and info.subscribes:
+                return info
+        time.sleep(0.02)
+    raise AssertionError(f"{name} never announced itself")
+
+
+def test_running_node_survives_fuzzed_frames_and_counts_them(graph):
+    listener = graph.spawn(["python", str(NODES / "listener.py"), "report_every:=1"], stdout=None)
+    _wait_announced(graph, "listener")
+    rng = np.random.default_rng(0)
+    good = M.encode(pac(7, stamp_ns=1, seq=0))
+    bad = [good[:n] for n in (0, 1, 5, len(good) // 2, len(good) - 1)]
+    bad += [bytes(rng.integers(0, 256, size=n, dtype=np.uint8)) for n in (1, 10, 100, 1000)]
+    for _ in range(20):
+        b = bytearray(good)
+        b[int(rng.integers(len(b)))] ^= 0xFF
+        bad.append(bytes(b))
+    bad.append(b"\x00" * (M.MAX_BODY_BYTES + 10))
+    bad.append(M.encode(M.SlipEstimate()))       # right topic, wrong type
+    with Node("fuzzer") as fuzzer:
+        hb = []
+        fuzzer.create_subscription(M.Heartbeat, lambda m: m.node == "listener" and hb.append(m))
+        raw = fuzzer.create_raw_publisher("/biotac/pac")
+        assert raw.wait_for_subscribers(1, 10)
+        for body in bad:
+            raw.publish_raw(body)
+        for frames in ([b"/biotac/pac\0"], [b"/biotac/pac\0", good, b"extra"], [b"/biotac/pac\0\xff\xfe", good]):
+            fuzzer._xpub.send_multipart(frames)
+        fuzzer.create_publisher(M.BiotacPac).publish(pac(1))
+        spin_until([fuzzer], lambda: hb and hb[-1].malformed_dropped > 0 and hb[-1].uptime_s > 0, 10)
+        # counts arrive with the next heartbeat after the frames were handled
+        t_first = hb[-1].uptime_s
+        spin_until([fuzzer], lambda: hb[-1].uptime_s > t_first, 5)
+        assert listener.poll() is None, "fuzzed frames killed the node"
+        n_bad = sum(1 for b in bad if _is_bad(b))
+        assert hb[-1].malformed_dropped == n_bad + 3    # + the three bad multipart messages
+    listener.send_signal(signal.SIGTERM)
+    out_err = listener.communicate(timeout=5)
+    assert listener.returncode == 0
+    assert b"dropped malformed" in out_err[1]
+
+
+def _is_bad(body):
+    try:
+        M.decode(body, M.BiotacPac)
+    except M.MessageError:
+        return True
+    return False
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_node_process_exits_0_promptly_on_signal(graph, sig):
+    proc = graph.spawn(["python", str(NODES / "listener.py")])
+    _wait_announced(graph, "listener")
+    t0 = time.monotonic()
+    proc.send_signal(sig)
+    assert proc.wait(timeout=5) == 0
+    assert time.monotonic() - t0 < 1.5
+    assert bus.scan(graph.dir) == []
