@@ -208,7 +208,7 @@ def _reader(path, f):
                              "could finish the file, or is the copy incomplete?)")
     f.seek(0)
     try:
-        reader = SeekingReader(f)
+        reader = SeekingReader(f, validate_crcs=True)
         summary = reader.get_summary()
     except Exception as exc:  # mcap raises McapError, struct.error, EndOfFile, ValueError...
         raise _corrupt(path, exc) from None

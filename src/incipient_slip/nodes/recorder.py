@@ -3,13 +3,17 @@
     python -m incipient_slip.nodes.recorder path:=run.mcap topics:='[/biotac/pac, /slip/estimate]'
     slip bag record run.mcap /biotac/pac /slip/estimate        # the same, in the foreground
 
-`topics: []` (the default) records every topic of the graph. Bodies are stored exactly as
+`topics: []` (the default) records every topic of the graph; `max_messages` > 0 ends the
+node (exit 0) once that many are recorded. Bodies are stored exactly as
 received (after validation: a malformed message is counted and dropped, never recorded);
 log time = receive time, publish time = the message's stamp. On SIGINT/SIGTERM the file is
 finished (summary, footer, fsync) before the process exits, so it holds every message the
-node received.
+node received, including those already queued to it when the signal came (drained for up
+to 1 s).
 """
 from __future__ import annotations
+
+import time
 
 from incipient_slip.messages import MessageError, decode_any
 from incipient_slip.nodes.bag import BagError, BagWriter
@@ -20,7 +24,7 @@ from incipient_slip.nodes.runtime import Node, run_node
 class Recorder(Node):
     """Records topics (all when `topics` is empty) to the MCAP file `path`."""
 
-    PARAMS = {"path": "recording.mcap", "topics": [], "compression": "zstd"}
+    PARAMS = {"path": "recording.mcap", "topics": [], "compression": "zstd", "max_messages": 0}
 
     def __init__(self, **kwargs):
         super().__init__("recorder", **kwargs)
@@ -30,11 +34,13 @@ class Recorder(Node):
         except BagError as exc:   # run_node reports a ParamError in one line, exit code 2
             raise ParamError(f"node {self.name!r}: parameter 'path': {exc}") from None
         self.dropped = 0
-        for topic in self.param("topics") or [None]:
-            self.create_raw_subscription(self.on_message, topic)
+        self.subs = [self.create_raw_subscription(self.on_message, topic)
+                     for topic in self.param("topics") or [None]]
         self.log(f"recording {', '.join(self.param('topics')) or 'all topics'} to {self.bag.path}")
 
     def on_message(self, topic: str, body: bytes, recv_ns: int) -> None:
+        if self.param("max_messages") and self.recorded >= self.param("max_messages"):
+            return
         try:
             msg = decode_any(body, topic)
         except MessageError as exc:
@@ -42,17 +48,36 @@ class Recorder(Node):
             self._warn_limited(("rec-drop", topic), f"not recorded, malformed: {exc}")
             return
         self.bag.write(topic, msg, log_time_ns=recv_ns, body=body)
+        if self.param("max_messages") and self.recorded >= self.param("max_messages"):
+            self.shutdown(f"recorded max_messages={self.param('max_messages')}")
+
+    @property
+    def recorded(self) -> int:
+        return sum(self.bag.counts.values())
+
+    def drain(self, quiet_s: float = 0.05, max_s: float = 1.0) -> None:
+        """Records what already reached this process when the stop came (bounded)."""
+        deadline = time.monotonic() + max_s
+        while time.monotonic() < deadline and not self.bag.closed:
+            before = self.recorded + self.dropped
+            self.spin_once(quiet_s)          # while stopping, one message per call, no timers
+            if self.recorded + self.dropped == before:
+                return
 
     def close(self) -> None:
         """Stops receiving, then finishes the MCAP file (valid even after SIGTERM)."""
+        bag = getattr(self, "bag", None)
         try:
+            if bag is not None and not bag.closed:
+                self.drain()
             super().close()
         finally:
-            if getattr(self, "bag", None) is not None and not self.bag.closed:
-                self.bag.close()
-                total = sum(self.bag.counts.values())
-                self.log(f"wrote {total} messages on {len(self.bag.counts)} topics to "
-                         f"{self.bag.path}" + (f" ({self.dropped} malformed dropped)" if self.dropped else ""))
+            if bag is not None and not bag.closed:
+                bag.close()
+                received = sum(sub.received for sub in self.subs)
+                self.log(f"received {received}, wrote {self.recorded} messages on "
+                         f"{len(bag.counts)} topics to {bag.path}"
+                         + (f" ({self.dropped} malformed dropped)" if self.dropped else ""))
 
 
 def main(argv=None):

@@ -1,0 +1,325 @@
+"""`slip topic list|echo|hz` and `slip bag record|play|info`: look at a running graph, record it, replay it.
+
+Each command that touches the graph runs a small node in the foreground (found through the
+same discovery as every node: $SLIP_GRAPH_DIR, $SLIP_GRAPH or --graph); Ctrl-C ends it with
+exit code 0. Bad input (a missing or corrupt file, a topic without '/', a rate <= 0) is one
+line on stderr and exit code 2. See docs/tools.md.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from collections import deque
+from pathlib import Path
+
+from incipient_slip.messages import MessageError, decode_any, to_plain
+from incipient_slip.nodes import bus
+from incipient_slip.nodes.bag import BagError, bag_info
+from incipient_slip.nodes.params import format_value
+from incipient_slip.nodes.runtime import Node, run_node
+
+__all__ = ["register", "TopicList", "TopicEcho", "TopicHz"]
+
+
+class UsageError(Exception):
+    """Bad command-line input: printed as one line, exit code 2."""
+
+
+# --- the tool nodes --------------------------------------------------------------------------
+
+class TopicList(Node):
+    """Listens to every topic for `duration_s` and prints topics, types, publishers and rates."""
+
+    PARAMS = {"duration_s": 1.0, "json": False}
+
+    def __init__(self, **kwargs):
+        super().__init__("slip_topic_list", **kwargs)
+        self.counts: dict[str, int] = {}
+        self.types: dict[str, str] = {}
+        self.create_raw_subscription(self.on_message)
+        self.create_timer(self.param("duration_s"), self.report)
+        self.t0 = time.monotonic()
+
+    def on_message(self, topic: str, body: bytes, recv_ns: int) -> None:
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+        if topic not in self.types:
+            try:
+                self.types[topic] = type(decode_any(body, topic)).__name__
+            except MessageError:
+                self.types[topic] = "(malformed)"
+
+    def report(self) -> None:
+        elapsed = time.monotonic() - self.t0
+        rows: dict[str, dict] = {}
+        for info in bus.scan(self._dir, clean=False):
+            if info.pid == os.getpid():
+                continue
+            for topic, type_name in info.publishes.items():
+                row = rows.setdefault(topic, {"topic": topic, "type": type_name, "publishers": []})
+                row["publishers"].append(info.name)
+                if row["type"] == "raw":
+                    row["type"] = self.types.get(topic, "raw")
+        for topic, n in self.counts.items():   # heard, though its publisher already left
+            rows.setdefault(topic, {"topic": topic, "type": self.types[topic], "publishers": []})
+        for row in rows.values():
+            row["rate_hz"] = self.counts.get(row["topic"], 0) / elapsed
+        table = sorted(rows.values(), key=lambda r: r["topic"])
+        if self.param("json"):
+            print(json.dumps(table))
+        elif not table:
+            print(f"no topics in graph {self._dir}")
+        else:
+            width = max(len(r["topic"]) for r in table)
+            print(f"{'topic':<{width}}  {'type':<14} {'rate_hz':>9}  publishers")
+            for r in table:
+                print(f"{r['topic']:<{width}}  {r['type']:<14} {r['rate_hz']:>9.1f}  "
+                      f"{', '.join(sorted(r['publishers'])) or '-'}")
+        self.shutdown()
+
+
+def _json_safe(value):
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, list):
+        return [_json_safe(v) for v in value]
+    return value
+
+
+def _yaml_value(value) -> str:
+    if isinstance(value, float) and not math.isfinite(value):
+        return ".nan" if math.isnan(value) else (".inf" if value > 0 else "-.inf")
+    return json.dumps(value)
+
+
+class TopicEcho(Node):
+    """Prints each message on `topic` (YAML documents, or JSON lines), `count` times (0: forever)."""
+
+    PARAMS = {"topic": "", "count": 0, "json": False}
+
+    def __init__(self, **kwargs):
+        super().__init__("slip_topic_echo", **kwargs)
+        self.printed = 0
+        self.create_raw_subscription(self.on_message, self.param("topic"))
+
+    def on_message(self, topic: str, body: bytes, recv_ns: int) -> None:
+        try:
+            msg = decode_any(body, topic)
+        except MessageError as exc:
+            self.warn(f"malformed message dropped: {exc}")
+            return
+        plain = to_plain(msg)
+        if self.param("json"):
+            print(json.dumps({"topic": topic, **{k: _json_safe(v) for k, v in plain.items()}}),
+                  flush=True)
+        else:   # YAML documents, one field a line, arrays inline (JSON is YAML)
+            lines = [f"--- # {topic}"] + [f"{k}: {_yaml_value(v)}" for k, v in plain.items()]
+            print("\n".join(lines), flush=True)
+        self.printed += 1
+        if self.param("count") and self.printed >= self.param("count"):
+            self.shutdown()
+
+
+class TopicHz(Node):
+    """Prints the rate of `topic` every second over the last `window` messages."""
+
+    PARAMS = {"topic": "", "window": 100, "duration_s": 0.0}
+
+    def __init__(self, **kwargs):
+        super().__init__("slip_topic_hz", **kwargs)
+        self.recv = deque(maxlen=max(2, self.param("window")))
+        self.stamps = deque(maxlen=max(2, self.param("window")))
+        self.create_raw_subscription(self.on_message, self.param("topic"))
+        self.create_timer(1.0, self.report)
+        if self.param("duration_s") > 0:
+            self.create_timer(self.param("duration_s"), self.shutdown)
+
+    def on_message(self, topic: str, body: bytes, recv_ns: int) -> None:
+        try:
+            msg = decode_any(body, topic)
+        except MessageError:
+            return
+        self.recv.append(recv_ns)
+        self.stamps.append(msg.stamp_ns)
+
+    def report(self) -> None:
+        if len(self.recv) < 2:
+            print(f"{self.param('topic')}: no messages yet", flush=True)
+            return
+        import numpy as np
+        dt = np.diff(np.array(self.recv, dtype=np.int64)) / 1e9
+        dstamp = np.diff(np.array(self.stamps, dtype=np.int64)) / 1e9
+        dstamp = dstamp[dstamp > 0]          # a replay that loops restarts its stamps
+        rate = 1.0 / dt.mean() if dt.mean() > 0 else float("inf")
+        stamp_rate = 1.0 / dstamp.mean() if dstamp.size else float("nan")
+        print(f"{self.param('topic')}: rate {rate:.2f} Hz (by stamps {stamp_rate:.2f} Hz)  "
+              f"min {dt.min():.4f} s  max {dt.max():.4f} s  std {dt.std():.5f} s  "
+              f"window {len(self.recv)}", flush=True)
+
+
+# --- command handlers ------------------------------------------------------------------------
+
+def _node_argv(**params) -> list[str]:
+    return [f"{k}:={format_value(v)}" for k, v in params.items()]
+
+
+def _graph_kwargs(args) -> dict:
+    return {"graph_dir": bus.graph_dir(args.graph)} if getattr(args, "graph", None) else {}
+
+
+def _topic(text: str) -> str:
+    if not text.startswith("/") or " " in text or "\0" in text:
+        raise UsageError(f"topic {text!r} must start with '/' (e.g. /biotac/pac)")
+    return text
+
+
+def _positive(name: str, value, allow_zero: bool = False):
+    if value is not None and not (value >= 0 if allow_zero else value > 0):
+        raise UsageError(f"{name} must be {'>= 0' if allow_zero else '> 0'}, got {value}")
+    return value
+
+
+def cmd_topic_list(args) -> int:
+    _positive("--duration", args.duration)
+    return run_node(TopicList, _node_argv(duration_s=args.duration, json=args.json),
+                    heartbeat_s=0, **_graph_kwargs(args))
+
+
+def cmd_topic_echo(args) -> int:
+    _positive("--count", args.count, allow_zero=True)
+    return run_node(TopicEcho, _node_argv(topic=_topic(args.topic), count=args.count, json=args.json),
+                    heartbeat_s=0, **_graph_kwargs(args))
+
+
+def cmd_topic_hz(args) -> int:
+    _positive("--window", args.window)
+    _positive("--duration", args.duration, allow_zero=True)
+    return run_node(TopicHz, _node_argv(topic=_topic(args.topic), window=args.window,
+                                        duration_s=args.duration or 0.0),
+                    heartbeat_s=0, **_graph_kwargs(args))
+
+
+def cmd_bag_record(args) -> int:
+    from incipient_slip.nodes.recorder import Recorder
+
+    out = Path(args.out)
+    if not out.parent.is_dir():
+        raise UsageError(f"{out}: directory {out.parent} does not exist")
+    if out.is_dir():
+        raise UsageError(f"{out}: is a directory, expected a file name like run.mcap")
+    topics = [_topic(t) for t in args.topics]
+    _positive("--max-messages", args.max_messages, allow_zero=True)
+    return run_node(Recorder, _node_argv(path=str(out), topics=topics, compression=args.compression,
+                                         max_messages=args.max_messages),
+                    **_graph_kwargs(args))
+
+
+def cmd_bag_play(args) -> int:
+    from incipient_slip.nodes.replay import Replay, resolve_bag_path
+
+    path = resolve_bag_path(args.bag)
+    info = bag_info(path)   # BagError here is a clean exit 2, before any socket exists
+    recorded = {t.topic for t in info.topics}
+    topics = [_topic(t) for t in args.topics or []]
+    missing = [t for t in topics if t not in recorded]
+    if missing:
+        raise UsageError(f"{path}: no topic {', '.join(missing)}; it has {', '.join(sorted(recorded))}")
+    _positive("--rate", args.rate)
+    return run_node(Replay, _node_argv(
+        path=str(path), rate=args.rate or 1.0, max_speed=args.max_speed, loop=args.loop,
+        topics=topics, wait_subscribers=args.wait_subscribers, wait_timeout_s=args.wait_timeout,
+        progress=sys.stderr.isatty()), **_graph_kwargs(args))
+
+
+def cmd_bag_info(args) -> int:
+    info = bag_info(args.bag)
+    print(json.dumps(info.to_plain(), indent=1) if args.json else info.format())
+    return 0
+
+
+def _guard(handler):
+    """`handler` with bad input turned into one line on stderr and exit code 2."""
+    def run(args) -> int:
+        try:
+            return handler(args)
+        except (UsageError, BagError, ValueError) as exc:
+            print(f"slip {args.command} {getattr(args, 'tool', '')}: error: {exc}", file=sys.stderr)
+            return 2
+    return run
+
+
+# --- registration ----------------------------------------------------------------------------
+
+def register(subparsers, reproduce) -> None:
+    """Adds `slip topic ...` and `slip bag ...` to the `slip` command."""
+    graph = argparse.ArgumentParser(add_help=False)
+    graph.add_argument("--graph", metavar="NAME", help="graph name (default $SLIP_GRAPH or "
+                       "'default'; $SLIP_GRAPH_DIR overrides the directory)")
+
+    topic = subparsers.add_parser("topic", help="look at the topics of a running graph")
+    tsub = topic.add_subparsers(dest="tool", metavar="TOOL", required=True)
+    p = tsub.add_parser("list", parents=[graph], help="topics being published now, types and rates")
+    p.add_argument("--duration", type=float, default=1.0, metavar="S",
+                   help="listen this long to measure rates (default 1 s)")
+    p.add_argument("--json", action="store_true", help="print one JSON list")
+    p.set_defaults(func=_guard(cmd_topic_list))
+    p = tsub.add_parser("echo", parents=[graph], help="print the messages of a topic")
+    p.add_argument("topic", help="e.g. /slip/estimate")
+    p.add_argument("--count", "-n", type=int, default=0, metavar="N", help="exit after N messages")
+    p.add_argument("--json", action="store_true", help="one JSON object per line (NaN as null)")
+    p.set_defaults(func=_guard(cmd_topic_echo))
+    p = tsub.add_parser("hz", parents=[graph], help="print the rate of a topic every second")
+    p.add_argument("topic", help="e.g. /biotac/pac")
+    p.add_argument("--window", "-w", type=int, default=100, metavar="N",
+                   help="rate over the last N messages (default 100)")
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="exit after S seconds")
+    p.set_defaults(func=_guard(cmd_topic_hz))
+
+    bag = subparsers.add_parser("bag", help="record, play and inspect MCAP recordings")
+    bsub = bag.add_subparsers(dest="tool", metavar="TOOL", required=True)
+    p = bsub.add_parser("record", parents=[graph], help="record topics (all if none) to an MCAP "
+                        "file until Ctrl-C/SIGTERM")
+    p.add_argument("out", metavar="OUT.mcap")
+    p.add_argument("topics", nargs="*", metavar="TOPIC")
+    p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
+    p.add_argument("--max-messages", type=int, default=0, metavar="N",
+                   help="stop after N messages (default 0: until Ctrl-C/SIGTERM)")
+    p.set_defaults(func=_guard(cmd_bag_record))
+    p = bsub.add_parser("play", parents=[graph], help="republish a recording with its original "
+                        "seq and stamps")
+    p.add_argument("bag", metavar="IN.mcap")
+    speed = p.add_mutually_exclusive_group()
+    speed.add_argument("--rate", "-r", type=float, default=None, metavar="R",
+                       help="play at R x the recorded speed (default 1)")
+    speed.add_argument("--max-speed", action="store_true", help="as fast as possible")
+    p.add_argument("--loop", "-l", action="store_true", help="start again at the end, until Ctrl-C")
+    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics "
+                   "(default: all but /heartbeat)")
+    p.add_argument("--wait-subscribers", type=int, default=1, metavar="N",
+                   help="before playing, wait for N subscribers on each topic (default 1; 0: don't)")
+    p.add_argument("--wait-timeout", type=float, default=3.0, metavar="S",
+                   help="play anyway after S seconds of waiting (default 3)")
+    p.set_defaults(func=_guard(cmd_bag_play))
+    p = bsub.add_parser("info", help="topics, types, counts, duration and rates of a recording")
+    p.add_argument("bag", metavar="IN.mcap")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=_guard(cmd_bag_info))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m incipient_slip.nodes.tools topic|bag ...`: these commands without the rest of `slip`."""
+    parser = argparse.ArgumentParser(prog="slip", description="topic and bag tools")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    register(subparsers, None)
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
