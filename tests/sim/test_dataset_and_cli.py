@@ -1,0 +1,80 @@
+"""Data sets on disk (docs/design.md format), independence of worker count, and the CLI contract."""
+import argparse
+import json
+
+import numpy as np
+import pytest
+
+from incipient_slip.sim import cli, load_scene
+from incipient_slip.sim.dataset import write_dataset
+from incipient_slip.sim.protocols import COLLECTION_FORCES_KPA, collection_forces_kpa
+
+KEYS = {"pac_counts": np.int16, "electrode_counts": np.uint16, "pdc_counts": np.uint16, "tac_counts": np.uint16,
+        "tdc_counts": np.uint16, "mocap_t_s": np.float64, "mocap_y_mm": np.float64, "period_end_s": np.float64,
+        "normal_force_kpa": np.float64, "tangential_force_n": np.float64, "actuator_mm": np.float64,
+        "object_y_mm": np.float64, "stick_area_ratio": np.float64, "load_ratio_stick": np.float64,
+        "gross_slip": np.bool_}
+
+
+def test_dataset_matches_the_documented_format(tmp_path):
+    write_dataset(load_scene("paper"), 2, 7, tmp_path, workers=1, steps=12, progress=False)
+    meta = json.loads((tmp_path / "meta.json").read_text())
+    assert meta["format"] == "incipient-slip-dataset" and meta["version"] == 1 and meta["injection"] is True
+    assert meta["n_series"] == 2 and meta["steps"] == 12 and meta["pac_pa_per_count"] == 0.37
+    with np.load(tmp_path / "series_00001.npz") as z:
+        for key, dtype in KEYS.items():
+            assert z[key].dtype == dtype, key
+        assert z["pac_counts"].shape == (12 * 1100,) and z["electrode_counts"].shape == (12 * 50, 19)
+        assert z["mocap_t_s"].shape == (12 * 60,) and z["normal_force_kpa"].shape == (12,)
+        assert str(z["material"]) == "abs" and bool(z["injection"]) and z["seed"].dtype == np.int64
+        assert set(np.round(z["normal_force_kpa"], 1)) <= set(COLLECTION_FORCES_KPA)
+
+
+def test_dataset_is_independent_of_worker_count(tmp_path):
+    scene = load_scene("electrodes_only")
+    write_dataset(scene, 3, 11, tmp_path / "a", workers=1, steps=8, progress=False)
+    write_dataset(scene, 3, 11, tmp_path / "b", workers=2, steps=8, progress=False)
+    for i in range(3):
+        with np.load(tmp_path / "a" / f"series_{i:05d}.npz") as a, np.load(tmp_path / "b" / f"series_{i:05d}.npz") as b:
+            for key in a.files:
+                assert np.array_equal(a[key], b[key]), key
+
+
+def test_collection_redraws_force_each_period_from_the_paper_grid():
+    f = collection_forces_kpa(3, 450)
+    assert set(f) <= set(COLLECTION_FORCES_KPA) and len(set(f)) == 13
+    assert np.mean(f[1:] != f[:-1]) > 0.8
+
+
+def _run(argv):
+    parser = argparse.ArgumentParser(prog="slip")
+    cli.register(parser.add_subparsers(dest="command", required=True), None)
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["dataset", "--scene", "nope", "--series", "1", "--out", "X"], "scene not found: nope"),
+    (["dataset", "--scene", "paper", "--series", "0", "--out", "X"], "--series must be >= 1"),
+    (["dataset", "--scene", "paper", "--series", "1", "--out", "X", "--materials", "wood"], "unknown material(s) wood"),
+    (["dataset", "--scene", "paper", "--series", "1", "--out", "X", "--workers", "0"], "--workers must be >= 1"),
+    (["sim", "calibrate", "--scene", "mechanics"], "no 'injection' effect"),
+])
+def test_bad_cli_input_exits_2_with_a_named_error(argv, needle, tmp_path, capsys):
+    argv = [str(tmp_path / "out") if a == "X" else a for a in argv]
+    assert _run(argv) == 2
+    err = capsys.readouterr().err
+    assert needle in err and "Traceback" not in err
+
+
+def test_cli_dataset_writes_series(tmp_path):
+    assert _run(["dataset", "--scene", "mechanics", "--series", "2", "--seed", "1", "--out", str(tmp_path),
+                 "--steps", "5", "--workers", "1", "--quiet"]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["meta.json", "series_00000.npz", "series_00001.npz"]
+
+
+def test_cli_help_explains_the_commands(capsys):
+    with pytest.raises(SystemExit):
+        _run(["dataset", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "materials[i % n]" in text and "independent of --workers" in text
