@@ -79,7 +79,7 @@ def register(subparsers, reproduce) -> None:
         description="Generate data-collection series on the simulated rig: per series 450 periods of "
         "500 ms, F_N redrawn each period from 1.1..5.9 kPa, the actuator stepping 23 mm in 450 steps. "
         "Writes meta.json + series_NNNNN.npz (format: docs/design.md). Series i uses material "
-        "materials[i %% n] and a seed derived from (--seed, i), so output is independent of --workers.")
+        "materials[i % n] and a seed derived from (--seed, i), so output is independent of --workers.")
     p.add_argument("--scene", required=True, help="scene name in scenes/ (paper, no_injection, ...) or a YAML path")
     p.add_argument("--series", type=int, required=True, help="number of series to write")
     p.add_argument("--seed", type=int, default=0, help="data set seed (default 0)")
