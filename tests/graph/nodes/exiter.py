@@ -1,0 +1,21 @@
+"""Test node: exits with `code` after `after_s` seconds (0: runs until signalled)."""
+import sys
+
+from incipient_slip.nodes.runtime import Node, run_node
+
+
+class Exiter(Node):
+    PARAMS = {"after_s": 0.0, "code": 0}
+
+    def __init__(self, **kwargs):
+        super().__init__("exiter", **kwargs)
+        if self.param("after_s") > 0:
+            self.create_timer(self.param("after_s"), lambda: self.shutdown("time is up", self.param("code")))
+
+
+def main(argv=None):
+    return run_node(Exiter, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
