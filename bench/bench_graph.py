@@ -151,10 +151,11 @@ def main() -> int:
 
     print(f"node graph benchmark: BiotacPac ({len(msg.pac_counts)} x int16), ipc, 2 processes, "
           f"{os.cpu_count()} cores")
-    p99 = {}
+    p99, med = {}, {}
     for name in ("raw", "graph"):
         lat = _stats(results[name]["rows"], 0, n_lat)
         p99[name] = float(np.percentile(lat, 99))
+        med[name] = float(np.median(lat))
         print(f"latency {name:5s}: n={len(lat)} median {np.median(lat):7.1f} us  "
               f"p99 {p99[name]:7.1f} us  max {lat.max():8.1f} us")
     for name in ("raw", "graph"):
@@ -165,6 +166,7 @@ def main() -> int:
         print(f"throughput {name:5s}: {len(rows)}/{FRAMES} frames, lost {lost}, gaps {res['gaps']}, "
               f"dropped {res['dropped']}: {len(rows) / span:8.0f} frames/s received "
               f"(send side {FRAMES / t_send[name]:8.0f} frames/s)")
+    print(f"graph/raw median ratio = {med['graph'] / med['raw']:.2f}")
     print(f"graph/raw p99 ratio = {p99['graph'] / p99['raw']:.2f}")
     return 0
 
