@@ -81,7 +81,7 @@ def test_stamp_is_kept_when_set_and_remaps_change_topic(graph):
         assert got[0].stamp_ns == 123
 
 
-def test_params_defaults_then_launch_then_command_line():
+def test_params_defaults_then_launch_then_command_line(graph):
     class P(Node):
         PARAMS = {"rate_hz": 100.0, "method": "injection", "n": 3}
 
