@@ -63,13 +63,20 @@ class WindowSet:
         return {int(s): str(m) for s, m in zip(self.series, self.material)}
 
 
+AFTER_SLIP = ("zero", "drop")
+
+
 def load_windows(data_dir: str | Path, spec: FeatureSpec, min_window_s: float | None = None,
-                 progress: bool = True) -> WindowSet:
+                 progress: bool = True, after_slip: str = "zero") -> WindowSet:
     """Return every labelled window of a data set for `spec` (one series file at a time).
 
     min_window_s: keep only windows that would also be complete for a window of this length
     (used to compare different T on the same samples).
+    after_slip: "zero" keeps the windows after gross slip with label 0 (the paper's rule);
+    "drop" keeps windows up to and including the gross-slip onset only (incipient slip range).
     """
+    if after_slip not in AFTER_SLIP:
+        raise ValueError(f"after_slip {after_slip!r} unknown; expected one of {AFTER_SLIP}")
     meta = ds.read_meta(data_dir)
     if spec.stream == "pac" and spec.injection is not None and bool(meta.get("injection", True)) != spec.injection:
         raise ds.DatasetError(
@@ -89,6 +96,8 @@ def load_windows(data_dir: str | Path, spec: FeatureSpec, min_window_s: float | 
         ok = valid_window_mask(s.period_end_s, spec, n_stream)
         if min_window_s is not None:
             ok &= s.period_end_s - min_window_s >= -1e-9
+        if after_slip == "drop":
+            ok &= np.arange(len(ok)) <= lab.gross_slip_index
         k = np.flatnonzero(ok)
         if len(k) == 0:
             continue
@@ -155,9 +164,8 @@ def svr_grid(n_features: int, quick: bool = False) -> list[dict]:
     """Return the SVR hyper-parameter grid (gamma in units of 1 / n_features, 'scale')."""
     eps = (0.02, 0.05)
     if quick:
-        rbf = [dict(kernel="rbf", C=C, gamma=g / n_features, epsilon=0.05)
-               for C, g in product((1.0, 10.0), (0.3, 1.0))]
-        return rbf + [dict(kernel="linear", C=1.0, epsilon=0.05)]
+        return [dict(kernel="rbf", C=C, gamma=g / n_features, epsilon=0.05)
+                for C, g in ((1.0, 1.0), (10.0, 0.3), (10.0, 1.0))]
     rbf = [dict(kernel="rbf", C=C, gamma=g / n_features, epsilon=e)
            for C, g, e in product((0.3, 1.0, 3.0, 10.0), (0.3, 1.0, 3.0), eps)]
     lin = [dict(kernel="linear", C=C, epsilon=e) for C, e in product((0.1, 1.0), eps)]

@@ -1,0 +1,126 @@
+"""The estimation study end to end: data sets -> six models -> held-out evaluation -> results.
+
+Used by `slip reproduce estimation`, `slip model regen` and the end-to-end test. Data comes
+from the simulated rig in-process (`incipient_slip.sim.dataset.write_dataset`); a directory
+that already holds the requested data set (same scene, seed and series count) is reused.
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from . import dataset as ds
+from .evaluation import SeriesScores, paired_tests, series_scores
+from .features import METHODS, feature_spec
+from .modelfile import Model
+from .training import WindowSet, held_out_series, load_windows, split_train_test, train_model
+
+SCENE_OF_METHOD = {m: ("no_injection" if m == "vibrotactile" else "paper") for m in METHODS}
+
+
+def ensure_dataset(scene: str, n_series: int, seed: int, out_dir: Path, workers: int = 2,
+                   steps: int = 450, progress: bool = True) -> Path:
+    """Return a data set directory for (scene, n_series, seed), simulating it if needed."""
+    out_dir = Path(out_dir)
+    try:
+        meta = ds.read_meta(out_dir)
+        if (meta.get("scene") == scene and meta.get("seed") == seed and meta.get("n_series") == n_series
+                and meta.get("steps") == steps and len(ds.series_paths(out_dir)) == n_series):
+            return out_dir
+    except ds.DatasetError:
+        pass
+    from ..sim.dataset import write_dataset
+    from ..sim.scene import load_scene
+    write_dataset(load_scene(scene), n_series, seed, out_dir, workers=workers, steps=steps,
+                  progress=progress)
+    return out_dir
+
+
+@dataclass
+class MethodResult:
+    method: str
+    model: Model
+    report: dict
+    test: WindowSet
+    pred: np.ndarray
+    scores: SeriesScores
+
+
+@dataclass
+class StudyResult:
+    results: dict                       # method -> MethodResult
+    tests_rmse: dict
+    tests_top10: dict
+    test_series: list
+    data_dirs: dict
+    timings: dict = field(default_factory=dict)
+
+    def table(self) -> list[dict]:
+        rows = []
+        for m, r in self.results.items():
+            s = r.scores.summary()
+            s.update(kind=r.report["kind"], params=r.report.get("params"),
+                     n_train_windows=r.report["n_windows"], n_support=r.report.get("n_support"),
+                     train_s=r.report["train_s"],
+                     p_rmse=self.tests_rmse.get(m, {}).get("p_holm"),
+                     p_top10=self.tests_top10.get(m, {}).get("p_holm"))
+            rows.append(s)
+        return rows
+
+    def to_json(self) -> dict:
+        return {"table": self.table(), "tests_rmse": self.tests_rmse, "tests_top10": self.tests_top10,
+                "test_series": self.test_series, "data_dirs": {k: str(v) for k, v in self.data_dirs.items()},
+                "timings": self.timings}
+
+
+def run_study(data_dirs: dict, methods=METHODS, kind: str = "svr", quick: bool = False,
+              max_train: int | None = 6000, grid_max: int = 2000, window_s: float = 1.0,
+              after_slip: str = "zero", progress: bool = True) -> StudyResult:
+    """Train and evaluate each method on its data set with one shared held-out series set.
+
+    data_dirs: {"paper": dir with injection, "no_injection": dir without}.
+    """
+    t0 = time.perf_counter()
+    windows = {}
+    for m in tqdm(methods, desc="features", disable=not progress, leave=False):
+        windows[m] = load_windows(data_dirs[SCENE_OF_METHOD[m]], feature_spec(m, window_s=window_s),
+                                  progress=progress, after_slip=after_slip)
+    # one held-out set for all methods: from the series materials of the first data set,
+    # checked against the others (same seed -> same material per series index)
+    ref = windows[methods[0]].series_materials()
+    for m in methods[1:]:
+        other = windows[m].series_materials()
+        bad = [i for i in set(ref) & set(other) if ref[i] != other[i]]
+        if bad:
+            raise ds.DatasetError(f"data sets disagree on the material of series {bad[:5]}; "
+                                  "generate both scenes with the same seed and series count")
+        ref = {**other, **ref}
+    test_series = held_out_series(ref)
+    results = {}
+    timings = {"features_s": time.perf_counter() - t0}
+    for m in tqdm(methods, desc="train", disable=not progress, leave=False):
+        train, test = split_train_test(windows[m], test_series)
+        tr = train_model(train, kind, max_train=max_train, grid_max=grid_max, quick=quick,
+                         progress=progress)
+        pred = tr.model.predict(test.X)
+        sc = series_scores(m, test.y, pred, test.series, test.material)
+        tr.model.header["test_series"] = [int(v) for v in test_series]
+        tr.model.header["test_rmse_mean"] = float(sc.rmse.mean())
+        results[m] = MethodResult(m, tr.model, tr.report, test, pred, sc)
+    scores = {m: r.scores for m, r in results.items()}
+    ref_m = "injection" if "injection" in scores else methods[0]
+    timings["total_s"] = time.perf_counter() - t0
+    return StudyResult(results, paired_tests(scores, ref_m, "rmse"),
+                       paired_tests(scores, ref_m, "top10_rmse"),
+                       [int(v) for v in test_series], dict(data_dirs), timings)
+
+
+def save_results(study: StudyResult, path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(study.to_json(), indent=1, default=float))
+    return path
