@@ -26,6 +26,8 @@ from incipient_slip.messages import (
 from incipient_slip.nodes.runtime import Node, run_node
 
 NAN = float("nan")
+PERIOD_NS = 500_000_000
+MOCAP_SAMPLE_NS = 1_000_000_000 // 120
 
 
 class Supervisor(Node):
@@ -40,6 +42,7 @@ class Supervisor(Node):
         "end_on_failure": True,           # false: run all steps and report (the paper's no action)
         "startup_timeout_s": 60.0,        # wall clock until the first grip command
         "silence_timeout_s": 5.0,         # wall clock between two grip commands
+        "data_wait_s": 0.05,              # longest wait for a period's pose and force after its command
         "quiet": False,                   # true: no one-screen summary (batch runs)
         # recorded in the summary only
         "method": "", "s_d": NAN, "k": NAN, "seed": 0, "material": "", "rig": "sim",
@@ -62,6 +65,8 @@ class Supervisor(Node):
                                        "stick_ratio_estimate")}
         self.started_wall = time.monotonic()
         self.last_command_wall = None
+        self.pending = None               # (GripCommand, wall deadline) of the period to judge
+        self.pose_stamp_ns = self.robot_stamp_ns = -1
         self.done = False
         self.event_pub = self.create_publisher(RunEvent)
         self.create_subscription(ObjectPose, self.on_pose)
@@ -73,14 +78,18 @@ class Supervisor(Node):
         # the slow channels may have no other reader (injection), so count them here, undecoded.
         self.slow_frames = 0
         self.create_raw_subscription(self.on_slow_frame, BiotacSlow.TOPIC)
-        self.create_timer(0.05, self.watchdog)
+        self.create_timer(0.01, self.watchdog)
 
     def on_pose(self, msg: ObjectPose):
         if msg.tracking_valid:
             self.travel_mm = msg.travel_mm
+            self.pose_stamp_ns = msg.stamp_ns
+            self.close_period()
 
     def on_robot(self, msg: RobotState):
         self.force_kpa = msg.normal_force_kpa
+        self.robot_stamp_ns = msg.stamp_ns
+        self.close_period()
 
     def on_slow_frame(self, topic: str, body: bytes, recv_ns: int):
         self.slow_frames += 1
@@ -92,14 +101,31 @@ class Supervisor(Node):
         self.pzt_on = msg.enabled
 
     def on_command(self, msg: GripCommand):
-        # One GripCommand answers each period (lock-step protocol), right after the rig's tick:
-        # it closes period `msg.period`, so y and F_N now hold that period's last values.
+        # One GripCommand answers each period, right after the rig's tick for it. It comes from
+        # another publisher than the rig's pose and force, so it may overtake them: the period is
+        # judged once the rig's data of that period are in (or after `data_wait_s`).
         if self.done or msg.period < 0:
             return
+        self.last_command_wall = time.monotonic()
+        if self.pending is not None:           # a newer period's command: judge the older now
+            self.close_period(force=True)
+        self.pending = (msg, self.last_command_wall + self.param("data_wait_s"))
+        self.close_period()
+
+    def close_period(self, force: bool = False):
+        if self.pending is None or self.done:
+            return
+        msg, deadline = self.pending
+        k = msg.period
+        end_ns = (k + 1) * PERIOD_NS
+        complete = (self.robot_stamp_ns >= k * PERIOD_NS
+                    and self.pose_stamp_ns >= end_ns - MOCAP_SAMPLE_NS - 1_000_000)
+        if not (complete or force or time.monotonic() >= deadline):
+            return
+        self.pending = None
         if self.steps == 0:
             self.event_pub.publish(RunEvent(kind="start", detail=f"method {self.param('method')}"))
-        self.steps = msg.period + 1
-        self.last_command_wall = time.monotonic()
+        self.steps = k + 1
         self.consecutive_holds = self.consecutive_holds + 1 if msg.hold else 0
         self.holds += msg.hold
         for key, value in (("step", self.steps), ("travel_mm", self.travel_mm),
@@ -114,6 +140,7 @@ class Supervisor(Node):
             self.finish(verdict)
 
     def watchdog(self):
+        self.close_period()
         if self.done:
             return
         now = time.monotonic()

@@ -1,0 +1,581 @@
+"""`slip reproduce stabilization`: the paper's stabilization Table through the real node graph.
+
+Every run is `launch/stabilize.yaml` resolved by the launcher (same file, same args as a user's
+`launch stabilize.yaml method:=e19 seed:=3`): rig_sim, estimator, grip_controller and
+supervisor as separate processes talking ZeroMQ in lock-step, each graph in its own graph
+directory so that `--jobs` graphs run side by side. The supervisor's JSON summary of each run
+is collected; the Table (success rate, y, F_N, steps, score with Welch t-tests against
+injection), trace figures and the s_d sweep are printed and written to docs/stabilization.md.
+
+Process start: by default (`--start fork`) a pre-imported parent forks each node process and
+calls the node module's `main(argv)` with the launcher's argv, instead of exec'ing a fresh
+interpreter (importing scipy for rig_sim alone costs ~1.5 s of CPU, about as much as a whole
+run). The nodes, sockets and messages are the same; `--start exec` runs the `launch` command
+itself for every run (slower; a cross-check).
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import math
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from incipient_slip import control
+from incipient_slip.paths import repo_root
+
+# the paper's column order
+TABLE_METHODS = ("none", "vibrotactile", "e1", "e4", "e10", "e19", "injection")
+METHOD_LABELS = {"none": "no action", "vibrotactile": "vibrotactile", "e1": "E1", "e4": "E4",
+                 "e10": "E10", "e19": "E19", "injection": "injection (ours)"}
+# the paper's Table (y and F_N at the last step; "-" where the paper gives none)
+PAPER_TABLE = {
+    "none": {"success": None, "y": 2.48, "fn": 2.94, "steps": 450},
+    "vibrotactile": {"success": 0.3, "y": 1.32, "fn": 5.96, "steps": 397},
+    "e1": {"success": 0.0, "y": 0.89, "fn": 6.47, "steps": 139},
+    "e4": {"success": 0.1, "y": 2.52, "fn": 3.59, "steps": 450},
+    "e10": {"success": 1.0, "y": 1.55, "fn": 5.23, "steps": 450},
+    "e19": {"success": 0.8, "y": 1.40, "fn": 6.24, "steps": 435},
+    "injection": {"success": 1.0, "y": 1.38, "fn": 4.50, "steps": 450},
+}
+MATERIALS = ("pla", "abs", "petg", "nylon", "tpu")
+SWEEP_TARGETS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8)
+NODE_MODULES = ("rig_sim", "estimator", "grip_controller", "supervisor")
+RUN_TIMEOUT_S = 180.0
+STOP_GRACE_S = 5.0
+
+
+# --- one run ---------------------------------------------------------------------------------
+
+@dataclass
+class RunSpec:
+    """One closed-loop run: the launch args of stabilize.yaml and where its summary goes."""
+
+    method: str
+    seed: int
+    material: str
+    s_d: float = control.DEFAULT_TARGET_STICK_RATIO
+    k: float = control.DEFAULT_GAIN_KPA
+    steps: int = control.MAX_STEPS
+    tag: str = "table"
+    summary_path: Path = Path()
+    log_path: Path = Path()
+
+    def launch_args(self) -> dict[str, str]:
+        return {"method": self.method, "seed": str(self.seed), "material": self.material,
+                "s_d": repr(float(self.s_d)), "k": repr(float(self.k)), "steps": str(self.steps),
+                "summary": str(self.summary_path), "quiet": "true"}
+
+    @property
+    def name(self) -> str:
+        return f"{self.tag}-{self.method}-sd{self.s_d:g}-k{self.k:g}-{self.material}-s{self.seed}"
+
+
+@dataclass
+class _Graph:
+    spec: RunSpec
+    directory: Path
+    pids: dict[int, str] = field(default_factory=dict)     # fork mode: pid -> node name
+    popen: subprocess.Popen | None = None                   # exec mode: the launch command
+    required_pid: int | None = None
+    started: float = 0.0
+    rc: int | None = None
+    log: object = None
+
+
+def _child_setup() -> None:
+    os.setpgid(0, 0)
+    try:
+        import ctypes
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)   # PR_SET_PDEATHSIG
+    except Exception:
+        pass
+
+
+class GraphRunner:
+    """Runs RunSpecs as node graphs, `jobs` at a time, from one single-threaded loop.
+
+    start="fork": resolve stabilize.yaml with the launcher, fork one process per node from this
+    pre-imported parent, end the graph when its required node (the supervisor) exits.
+    start="exec": run the `launch` command (the user's entry point) per run.
+    """
+
+    def __init__(self, jobs: int = 2, start: str = "fork", timeout_s: float = RUN_TIMEOUT_S):
+        if start not in ("fork", "exec"):
+            raise ValueError(f"start must be 'fork' or 'exec', got {start!r}")
+        self.jobs, self.start, self.timeout_s = max(1, jobs), start, timeout_s
+        from incipient_slip.nodes import launcher
+        self.launcher = launcher
+        self.launch_file = launcher.find_launch_file("stabilize.yaml")
+        if start == "fork":
+            for name in NODE_MODULES:      # imported once here; every forked node shares them
+                importlib.import_module(f"incipient_slip.nodes.{name}")
+
+    def run(self, specs: list[RunSpec], progress=None) -> list[dict]:
+        """The summaries of all runs, in the order of `specs` (a failed launch gets a fault)."""
+        pending = list(enumerate(specs))[::-1]
+        active: list[tuple[int, _Graph]] = []
+        results: list[dict | None] = [None] * len(specs)
+        while pending or active:
+            while pending and len(active) < self.jobs:
+                i, spec = pending.pop()
+                active.append((i, self._begin(spec)))
+            time.sleep(0.005)
+            still = []
+            for i, g in active:
+                if self._poll(g):
+                    results[i] = self._collect(g)
+                    if progress:
+                        progress(i, results[i])
+                else:
+                    still.append((i, g))
+            active = still
+        return results
+
+    # --- starting and ending one graph -------------------------------------------------------
+
+    def _begin(self, spec: RunSpec) -> _Graph:
+        directory = Path(tempfile.mkdtemp(prefix="stab", dir="/tmp"))
+        spec.summary_path.parent.mkdir(parents=True, exist_ok=True)
+        if spec.summary_path.exists():
+            spec.summary_path.unlink()
+        g = _Graph(spec, directory, started=time.monotonic())
+        g.log = open(spec.log_path, "wb")
+        if self.start == "exec":
+            cmd = [sys.executable, "-m", "incipient_slip.nodes.launcher", str(self.launch_file)]
+            cmd += [f"{k}:={v}" for k, v in spec.launch_args().items()]
+            env = dict(os.environ, SLIP_GRAPH_DIR=str(directory), PYTHONUNBUFFERED="1")
+            g.popen = subprocess.Popen(cmd, stdout=g.log, stderr=subprocess.STDOUT, env=env,
+                                       stdin=subprocess.DEVNULL, start_new_session=True)
+            return g
+        desc = self.launcher.load(self.launch_file, spec.launch_args())
+        sys.stdout.flush()
+        sys.stderr.flush()
+        for node in desc.nodes:
+            pid = self._fork_node(node, directory, g.log.fileno())
+            g.pids[pid] = node.name
+            if node.required:
+                g.required_pid = pid
+        return g
+
+    @staticmethod
+    def _fork_node(node, directory: Path, log_fd: int) -> int:
+        module = node.command[-1]              # [python, -m, module]
+        argv = node.argv()[len(node.command):]
+        pid = os.fork()
+        if pid:
+            return pid
+        rc = 1
+        try:                                   # the child: become the node, never return
+            _child_setup()
+            for s in (signal.SIGINT, signal.SIGTERM, signal.SIGCHLD):
+                signal.signal(s, signal.SIG_DFL)
+            os.dup2(log_fd, 1)
+            os.dup2(log_fd, 2)
+            os.environ.update(SLIP_GRAPH_DIR=str(directory), SLIP_LAUNCHED="1", **node.env)
+            print(f"--- {node.name}: {module} {' '.join(argv)}", file=sys.stderr, flush=True)
+            rc = int(importlib.import_module(module).main(argv) or 0)
+        except BaseException:
+            traceback.print_exc()
+        finally:
+            try:
+                sys.stdout.flush()
+                sys.stderr.flush()
+            finally:
+                os._exit(rc)
+
+    def _poll(self, g: _Graph) -> bool:
+        """True once the graph has ended (required node exited, or timed out) and is cleaned up."""
+        timed_out = time.monotonic() - g.started > self.timeout_s
+        if g.popen is not None:
+            rc = g.popen.poll()
+            if rc is None and not timed_out:
+                return False
+            if rc is None:
+                os.killpg(g.popen.pid, signal.SIGTERM)
+                try:
+                    g.popen.wait(STOP_GRACE_S)
+                except subprocess.TimeoutExpired:
+                    os.killpg(g.popen.pid, signal.SIGKILL)
+                    g.popen.wait()
+                g.rc = -1
+            else:
+                g.rc = rc
+            return True
+        done = {}
+        for pid in list(g.pids):
+            r, status = os.waitpid(pid, os.WNOHANG)
+            if r:
+                done[pid] = os.waitstatus_to_exitcode(status)
+        for pid, rc in done.items():
+            name = g.pids.pop(pid)
+            if pid == g.required_pid:
+                g.rc = rc
+            elif rc not in (0,):
+                os.write(g.log.fileno(), f"--- {name} exited with {rc}\n".encode())
+        if g.rc is None and g.required_pid not in g.pids and g.required_pid is not None:
+            g.rc = 1
+        if g.rc is None and not timed_out:
+            return False
+        if g.rc is None:
+            g.rc = -1
+        self._stop(g)
+        return True
+
+    def _stop(self, g: _Graph) -> None:
+        """SIGTERM every node still running, SIGKILL at the grace deadline, reap all."""
+        for pid in g.pids:
+            try:
+                os.kill(pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+        deadline = time.monotonic() + STOP_GRACE_S
+        while g.pids and time.monotonic() < deadline:
+            for pid in list(g.pids):
+                if os.waitpid(pid, os.WNOHANG)[0]:
+                    g.pids.pop(pid)
+            time.sleep(0.005)
+        for pid in list(g.pids):
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            os.waitpid(pid, 0)
+            g.pids.pop(pid)
+
+    def _collect(self, g: _Graph) -> dict:
+        wall = time.monotonic() - g.started
+        g.log.close()
+        shutil.rmtree(g.directory, ignore_errors=True)
+        spec = g.spec
+        try:
+            summary = json.loads(spec.summary_path.read_text())
+        except (OSError, ValueError):
+            summary = {"outcome": "fault", "success": False, "steps": 0,
+                       "final_travel_mm": float("nan"), "final_force_kpa": float("nan"),
+                       "detail": f"no summary (launch exit {g.rc}); log {spec.log_path}",
+                       "traces": {}}
+        summary.update(launch_rc=g.rc, launch_wall_s=round(wall, 3), method=spec.method,
+                       seed=spec.seed, material=spec.material, s_d=spec.s_d, k=spec.k, tag=spec.tag)
+        return summary
+
+
+# --- statistics ------------------------------------------------------------------------------
+
+def run_score(summary: dict) -> float:
+    """The paper's score of one run (success 0 or 1); nan when y or F_N is not positive."""
+    y, fn = summary.get("final_travel_mm", math.nan), summary.get("final_force_kpa", math.nan)
+    if not (isinstance(y, (int, float)) and isinstance(fn, (int, float)) and y > 0 and fn > 0):
+        return math.nan
+    return control.score(1.0 if summary.get("success") else 0.0, y, fn)
+
+
+def aggregate(summaries: list[dict]) -> dict:
+    """Success rate, mean/std of final y, F_N and steps, the Table score and per-run scores."""
+    y = np.array([s["final_travel_mm"] for s in summaries], dtype=float)
+    fn = np.array([s["final_force_kpa"] for s in summaries], dtype=float)
+    steps = np.array([s["steps"] for s in summaries], dtype=float)
+    success = np.array([bool(s.get("success")) for s in summaries])
+    scores = np.array([run_score(s) for s in summaries])
+    rate = float(success.mean()) if len(success) else math.nan
+    y_mean, fn_mean = float(np.nanmean(y)), float(np.nanmean(fn))
+    table_score = (control.score(rate, y_mean, fn_mean)
+                   if y_mean > 0 and fn_mean > 0 else math.nan)
+    return {"n": len(summaries), "success_rate": rate,
+            "y_mean": y_mean, "y_std": float(np.nanstd(y)), "fn_mean": fn_mean,
+            "fn_std": float(np.nanstd(fn)), "steps_mean": float(np.mean(steps)),
+            "score": table_score, "run_scores": scores.tolist(),
+            "faults": int(sum(s.get("outcome") == "fault" for s in summaries)),
+            "outcomes": {k: int(sum(s.get("outcome") == k for s in summaries))
+                         for k in ("success", "failure", "fault")}}
+
+
+def t_test_p(a, b) -> float:
+    """Two-sided Welch t-test p-value of two samples of run scores (nan if undefined)."""
+    from scipy import stats
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    a, b = a[np.isfinite(a)], b[np.isfinite(b)]
+    if len(a) < 2 or len(b) < 2:
+        return math.nan
+    if np.std(a) == 0 and np.std(b) == 0:
+        return 1.0 if np.mean(a) == np.mean(b) else 0.0
+    return float(stats.ttest_ind(a, b, equal_var=False).pvalue)
+
+
+def stars(p: float) -> str:
+    return "**" if p < 0.01 else ("*" if p < 0.05 else "")
+
+
+def table_rows(results: dict[str, list[dict]]) -> dict[str, dict]:
+    """Aggregate per method plus the p-value of its run scores against injection."""
+    rows = {m: aggregate(results[m]) for m in TABLE_METHODS if results.get(m)}
+    ref = rows.get("injection", {}).get("run_scores", [])
+    for m, row in rows.items():
+        row["p_vs_injection"] = math.nan if m == "injection" else t_test_p(row["run_scores"], ref)
+    return rows
+
+
+def _fmt(v, spec=".2f", none="–") -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return none
+    return format(v, spec)
+
+
+def format_table_markdown(rows: dict[str, dict]) -> str:
+    """The Table, simulation beside the paper, as markdown."""
+    methods = [m for m in TABLE_METHODS if m in rows]
+    head = "| | " + " | ".join(METHOD_LABELS[m] for m in methods) + " |"
+    sep = "|---|" + "---|" * len(methods)
+    paper_score = {m: (control.score(PAPER_TABLE[m]["success"] or 0.0, PAPER_TABLE[m]["y"],
+                                     PAPER_TABLE[m]["fn"])) for m in methods}
+
+    def line(label, fn):
+        return f"| {label} | " + " | ".join(fn(m) for m in methods) + " |"
+    lines = [head, sep,
+             line("success rate ↑ (sim)", lambda m: _fmt(rows[m]["success_rate"])),
+             line("success rate (paper)", lambda m: _fmt(PAPER_TABLE[m]["success"])),
+             line("y [mm] ↓ (sim)", lambda m: f"{_fmt(rows[m]['y_mean'])} ± {_fmt(rows[m]['y_std'])}"),
+             line("y [mm] (paper)", lambda m: _fmt(PAPER_TABLE[m]["y"])),
+             line("F_N [kPa] ↓ (sim)", lambda m: f"{_fmt(rows[m]['fn_mean'])} ± {_fmt(rows[m]['fn_std'])}"),
+             line("F_N [kPa] (paper)", lambda m: _fmt(PAPER_TABLE[m]["fn"])),
+             line("steps ↑ (sim)", lambda m: _fmt(rows[m]["steps_mean"], ".0f")),
+             line("steps (paper)", lambda m: _fmt(PAPER_TABLE[m]["steps"], "d")),
+             line("score ↑ (sim)", lambda m: _fmt(rows[m]["score"]) + stars(rows[m]["p_vs_injection"])),
+             line("score (paper's numbers)", lambda m: _fmt(paper_score[m])),
+             line("p vs injection (Welch, run scores)",
+                  lambda m: "ref" if m == "injection" else _fmt(rows[m]["p_vs_injection"], ".3g")),
+             line("runs (success/failure/fault)",
+                  lambda m: "/".join(str(rows[m]["outcomes"][k]) for k in ("success", "failure", "fault")))]
+    return "\n".join(lines)
+
+
+def format_table_text(rows: dict[str, dict]) -> str:
+    """The Table for a terminal: one line per method."""
+    out = [f"{'method':<17}{'succ':>6}{'(paper)':>8}{'y mm':>7}{'(paper)':>8}{'F_N kPa':>9}"
+           f"{'(paper)':>8}{'steps':>7}{'(paper)':>8}{'score':>7}{'p':>8}"]
+    for m in TABLE_METHODS:
+        if m not in rows:
+            continue
+        r, p = rows[m], PAPER_TABLE[m]
+        out.append(f"{METHOD_LABELS[m]:<17}{_fmt(r['success_rate']):>6}{_fmt(p['success']):>8}"
+                   f"{_fmt(r['y_mean']):>7}{_fmt(p['y']):>8}{_fmt(r['fn_mean']):>9}{_fmt(p['fn']):>8}"
+                   f"{_fmt(r['steps_mean'], '.0f'):>7}{_fmt(p['steps'], 'd'):>8}{_fmt(r['score']):>7}"
+                   f"{'ref' if m == 'injection' else _fmt(r['p_vs_injection'], '.3g'):>8}")
+    return "\n".join(out)
+
+
+# --- figures ---------------------------------------------------------------------------------
+
+SIM_LABEL = "simulated rig"
+
+
+def plot_traces(results: dict[str, list[dict]], path: Path) -> None:
+    """y and F_N over steps, every run of every method (one column per method)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    methods = [m for m in TABLE_METHODS if results.get(m)]
+    fig, axes = plt.subplots(2, len(methods), figsize=(2.4 * len(methods), 4.6), sharex=True,
+                             sharey="row", squeeze=False)
+    for j, m in enumerate(methods):
+        for s in results[m]:
+            tr = s.get("traces") or {}
+            if not tr.get("step"):
+                continue
+            color = "tab:green" if s.get("success") else ("tab:red" if s.get("outcome") == "failure" else "tab:gray")
+            axes[0, j].plot(tr["step"], tr["travel_mm"], color=color, lw=0.8, alpha=0.7)
+            axes[1, j].plot(tr["step"], tr["force_kpa"], color=color, lw=0.8, alpha=0.7)
+        axes[0, j].axhline(control.FAILURE_TRAVEL_MM, color="k", ls="--", lw=0.7)
+        axes[1, j].axhline(control.SAFETY_LIMIT_KPA, color="k", ls="--", lw=0.7)
+        axes[0, j].set_title(METHOD_LABELS[m], fontsize=9)
+        axes[1, j].set_xlabel("step")
+    axes[0, 0].set_ylabel("y [mm]")
+    axes[1, 0].set_ylabel("F_N [kPa]")
+    fig.suptitle(f"Stabilization traces ({SIM_LABEL}; green success, red failure, gray fault; "
+                 f"dashed: failure limits)", fontsize=9)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_sweep(sweep: dict, path: Path) -> None:
+    """Success rate, steps and final F_N against the target s_d, one line per method."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
+    for m in TABLE_METHODS:
+        if m not in sweep:
+            continue
+        xs = sorted(float(x) for x in sweep[m])
+        rows = [sweep[m][repr(x)] if repr(x) in sweep[m] else sweep[m][str(x)] for x in xs]
+        style = dict(marker="o", lw=2.2 if m == "injection" else 1.0, label=METHOD_LABELS[m])
+        axes[0].plot(xs, [r["success_rate"] for r in rows], **style)
+        axes[1].plot(xs, [r["steps_mean"] for r in rows], **style)
+        axes[2].plot(xs, [r["fn_mean"] for r in rows], **style)
+    for ax, label in zip(axes, ("success rate", "steps (mean)", "final F_N [kPa] (mean)")):
+        ax.set_xlabel("target stick ratio s_d")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[2].axhline(control.SAFETY_LIMIT_KPA, color="k", ls="--", lw=0.7)
+    axes[0].legend(fontsize=7)
+    fig.suptitle(f"s_d sweep ({SIM_LABEL})", fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# --- the experiment --------------------------------------------------------------------------
+
+def make_specs(methods, runs: int, s_d: float, k: float, steps: int, work: Path, tag: str) -> list[RunSpec]:
+    """Run i of every method uses seed i and material i mod 5: the methods see the same rigs."""
+    specs = []
+    for m in methods:
+        for i in range(runs):
+            spec = RunSpec(m, i, MATERIALS[i % len(MATERIALS)], s_d, k, steps, tag)
+            spec.summary_path = work / f"{spec.name}.json"
+            spec.log_path = work / f"{spec.name}.log"
+            specs.append(spec)
+    return specs
+
+
+def _progress(total: int, t0: float):
+    done = [0]
+
+    def report(i, s):
+        done[0] += 1
+        print(f"  [{done[0]:>3}/{total}] {s['tag']:<6} {s['method']:<12} s_d {s['s_d']:<4g} "
+              f"seed {s['seed']} {s['material']:<5} {s['outcome']:<7} steps {s['steps']:>3} "
+              f"y {_fmt(s['final_travel_mm'])} F_N {_fmt(s['final_force_kpa'])} "
+              f"({s['launch_wall_s']:.1f} s, total {time.monotonic() - t0:.0f} s)", flush=True)
+    return report
+
+
+def _compact(summary: dict, keep_traces: bool) -> dict:
+    out = {k: v for k, v in summary.items() if k != "traces"}
+    if keep_traces:
+        out["traces"] = summary.get("traces", {})
+    return out
+
+
+def cmd_stabilization(args) -> int:
+    """Run the Table (and the sweep / k tuning when asked), print it, write docs."""
+    runs = args.runs if args.runs is not None else (2 if args.quick else 10)
+    steps = args.steps
+    work = Path(args.out or (repo_root() / "runs" / ("stabilization-quick" if args.quick else "stabilization")))
+    work.mkdir(parents=True, exist_ok=True)
+    docs = Path(args.docs) if args.docs else (None if args.quick else repo_root() / "docs")
+    cache_path = (docs / "figures" / "stab_results.json") if docs else work / "stab_results.json"
+    cache = json.loads(cache_path.read_text()) if cache_path.exists() else {}
+    runner = GraphRunner(jobs=args.jobs, start=args.start)
+    methods = tuple(args.methods)
+    t0 = time.monotonic()
+
+    if args.tune_k:
+        grid = [float(x) for x in args.tune_k.split(",")]
+        specs = [s for k in grid for s in make_specs(("injection",), runs, args.s_d, k, steps,
+                                                      work / "tune", f"k{k:g}")]
+        summaries = runner.run(specs, _progress(len(specs), t0))
+        tune = {}
+        for k in grid:
+            got = [s for s in summaries if s["k"] == k]
+            tune[repr(k)] = {key: v for key, v in aggregate(got).items() if key != "run_scores"}
+            tune[repr(k)]["holds_mean"] = float(np.mean([s.get("holds", 0) for s in got]))
+        print("\nk tuning (injection only, s_d = %.2f, %d runs each):" % (args.s_d, runs))
+        for k, r in tune.items():
+            print(f"  k = {float(k):<5g} success {_fmt(r['success_rate'])}  steps {_fmt(r['steps_mean'], '.0f')}  "
+                  f"y {_fmt(r['y_mean'])}  F_N {_fmt(r['fn_mean'])}  score {_fmt(r['score'])}")
+        cache["tune_k"] = {"s_d": args.s_d, "runs": runs, "rows": tune,
+                           "wall_s": round(time.monotonic() - t0, 1)}
+        t0 = time.monotonic()
+
+    specs = make_specs(methods, runs, args.s_d, args.k, steps, work / "table", "table")
+    summaries = runner.run(specs, _progress(len(specs), t0))
+    table_wall = time.monotonic() - t0
+    results = {m: [s for s in summaries if s["method"] == m] for m in methods}
+    rows = table_rows(results)
+    print(f"\nStabilization Table, SIMULATED rig ({runs} runs per method, s_d = {args.s_d}, "
+          f"k = {args.k}, {args.jobs} graphs in parallel, start={args.start}): {table_wall:.1f} s")
+    print(format_table_text(rows))
+    cache["table"] = {"runs": runs, "s_d": args.s_d, "k": args.k, "steps": steps, "jobs": args.jobs,
+                      "start": args.start, "wall_s": round(table_wall, 1), "cpus": os.cpu_count(),
+                      "rows": {m: {k: v for k, v in r.items()} for m, r in rows.items()},
+                      "runs_detail": [_compact(s, False) for s in summaries]}
+    fig_dir = (docs / "figures") if docs else work
+    plot_traces(results, fig_dir / "stab_traces.png")
+
+    if args.sweep:
+        t1 = time.monotonic()
+        sweep_methods = [m for m in methods if m != "none"]
+        sweep_runs = args.sweep_runs or max(1, min(runs, 3))
+        specs = []
+        for sd in SWEEP_TARGETS:
+            specs += make_specs(sweep_methods, sweep_runs, sd, args.k, steps, work / "sweep", "sweep")
+        sweep_summaries = runner.run(specs, _progress(len(specs), t1))
+        sweep = {}
+        for m in sweep_methods:
+            sweep[m] = {}
+            for sd in SWEEP_TARGETS:
+                got = [s for s in sweep_summaries if s["method"] == m and s["s_d"] == sd]
+                agg = aggregate(got)
+                agg.pop("run_scores")
+                sweep[m][repr(sd)] = agg
+        cache["sweep"] = {"runs": sweep_runs, "k": args.k, "rows": sweep,
+                          "wall_s": round(time.monotonic() - t1, 1)}
+        print(f"\ns_d sweep ({sweep_runs} runs per point, {time.monotonic() - t1:.1f} s): success rate")
+        print("method        " + "".join(f"{sd:>6g}" for sd in SWEEP_TARGETS))
+        for m in sweep_methods:
+            print(f"{METHOD_LABELS[m]:<14}" + "".join(f"{sweep[m][repr(sd)]['success_rate']:>6.2f}"
+                                                    for sd in SWEEP_TARGETS))
+    if "sweep" in cache:
+        plot_sweep(cache["sweep"]["rows"], fig_dir / "stab_sweep.png")
+
+    cache_path.parent.mkdir(parents=True, exist_ok=True)
+    cache_path.write_text(json.dumps(cache, indent=1, allow_nan=True))
+    if docs:
+        (docs / "stabilization.md").write_text(render_doc(cache))
+        print(f"\nwrote {docs / 'stabilization.md'}, {fig_dir}/stab_*.png")
+    print(f"table wall time {table_wall:.1f} s on {os.cpu_count()} cores")
+    return 0
+
+
+def render_doc(cache: dict) -> str:
+    """docs/stabilization.md from the cached results (every number labelled simulation)."""
+    return "(doc renderer pending)\n"
+
+
+def register(subparsers, reproduce) -> None:
+    p = reproduce.add_parser(
+        "stabilization", help="the paper's stabilization Table through the node graph (simulated rig)",
+        description="10 closed-loop runs per method (no action, vibrotactile, E1, E4, E10, E19, "
+        "injection) through launch/stabilize.yaml (real processes, lock-step), the Table beside the "
+        "paper's with t-tests of the score against injection, trace figures, and with --sweep the "
+        "target s_d from 0.1 to 0.8. Writes docs/stabilization.md (unless --quick).")
+    p.add_argument("--runs", type=int, default=None, help="runs per method (default 10; --quick 2)")
+    p.add_argument("--quick", action="store_true", help="2 runs per method; docs untouched")
+    p.add_argument("--sweep", action="store_true", help="also sweep s_d over 0.1..0.8 per method")
+    p.add_argument("--sweep-runs", type=int, default=None, help="runs per sweep point (default 3)")
+    p.add_argument("--methods", nargs="+", choices=TABLE_METHODS, default=list(TABLE_METHODS))
+    p.add_argument("--s-d", dest="s_d", type=float, default=control.DEFAULT_TARGET_STICK_RATIO)
+    p.add_argument("--k", type=float, default=control.DEFAULT_GAIN_KPA, help="grip gain (kPa per unit s error)")
+    p.add_argument("--steps", type=int, default=control.MAX_STEPS, help="steps of a full run (450)")
+    p.add_argument("--tune-k", metavar="K1,K2,...", help="first run injection over these gains")
+    p.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1), help="graphs in parallel")
+    p.add_argument("--start", choices=("fork", "exec"), default="fork",
+                   help="fork nodes from a pre-imported parent (default) or exec the launch command")
+    p.add_argument("--out", type=Path, help="work directory (default runs/stabilization)")
+    p.add_argument("--docs", type=Path, help="docs directory to write (default docs/ unless --quick)")
+    p.set_defaults(func=cmd_stabilization)
