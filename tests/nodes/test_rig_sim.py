@@ -1,0 +1,230 @@
+"""The rig_sim node as a real process: the same seed and F_N sequence give byte-identical data
+through the node and through the in-process `Rig.step_period` loop; lock-step, real time,
+scenes and faults."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from incipient_slip.messages import (
+    ActuatorState, BiotacPac, BiotacSlow, GripCommand, ObjectPose, PztCommand, PztState, RobotState,
+)
+from incipient_slip.nodes import bus
+from incipient_slip.nodes.rig_sim import pac_frame_stamps_ns, slow_frame_stamps_ns
+from incipient_slip.nodes.runtime import Node
+from incipient_slip.sim.dataset import simulate_series
+from incipient_slip.sim.rig import Rig, load_scene
+
+RECORDED = (BiotacPac, BiotacSlow, ObjectPose, RobotState, ActuatorState, PztState)
+
+
+class Controller(Node):
+    """Records every rig topic and answers each tick k with GripCommand(period=k)."""
+
+    def __init__(self, graph_dir, answer=None):
+        super().__init__("test_controller", graph_dir=graph_dir, heartbeat_s=0)
+        self.answer = answer                  # k -> GripCommand or None (no answer)
+        self.got = {t: [] for t in RECORDED}
+        self.subs = {t: self.create_subscription(t, self.got[t].append) for t in RECORDED
+                     if t is not ActuatorState}
+        self.subs[ActuatorState] = self.create_subscription(ActuatorState, self.on_tick)
+        self.grip = self.create_publisher(GripCommand)
+        self.pzt = self.create_publisher(PztCommand)
+
+    def on_tick(self, msg):
+        self.got[ActuatorState].append(msg)
+        if self.answer is not None:
+            self.answer(self, msg.step_index)
+
+    def ticks(self):
+        return len(self.got[ActuatorState])
+
+    def spin_until(self, predicate, timeout_s=20.0, proc=None):
+        deadline = time.monotonic() + timeout_s
+        while not predicate():
+            if proc is not None and proc.poll() is not None:
+                raise AssertionError(f"rig_sim exited {proc.returncode}: {proc.stderr.read().decode()}")
+            assert time.monotonic() < deadline, "timed out"
+            self.spin_once(0.02)
+
+
+def start_rig(graph, **params):
+    argv = ["python", "-m", "incipient_slip.nodes.rig_sim"] + [f"{k}:={v}" for k, v in params.items()]
+    return graph.spawn(argv)
+
+
+def connect(ctl, proc, pub):
+    """Waits until rig_sim subscribed to `pub` (it waits for us on its own topics)."""
+    deadline = time.monotonic() + 20
+    while not pub.wait_for_subscribers(1, 0.1):
+        assert proc.poll() is None, proc.stderr.read().decode()
+        assert time.monotonic() < deadline, "rig_sim never subscribed"
+
+
+def stop(proc):
+    proc.terminate()
+    assert proc.wait(10) == 0
+    return proc.stderr.read().decode()
+
+
+def streams_of(got):
+    """The node's messages as arrays, in the layout of the in-process outputs."""
+    pac, slow, pose = got[BiotacPac], got[BiotacSlow], got[ObjectPose]
+    for msgs in (pac, slow, pose):
+        assert [m.seq for m in msgs] == list(range(len(msgs))), "lost or reordered messages"
+    return {
+        "pac_counts": np.concatenate([m.pac_counts for m in pac]),
+        "pac_stamps": np.array([m.stamp_ns for m in pac]),
+        "electrode_counts": np.stack([m.electrode_counts for m in slow]),
+        "pdc_counts": np.array([m.pdc_counts for m in slow], dtype=np.uint16),
+        "tac_counts": np.array([m.tac_counts for m in slow], dtype=np.uint16),
+        "tdc_counts": np.array([m.tdc_counts for m in slow], dtype=np.uint16),
+        "slow_stamps": np.array([m.stamp_ns for m in slow]),
+        "mocap_y_mm": np.array([m.position_mm[1] for m in pose]),
+        "mocap_stamps": np.array([m.stamp_ns for m in pose]),
+    }
+
+
+def assert_same_sensor_data(node: dict, ref: dict, steps: int):
+    for key in ("pac_counts", "electrode_counts", "pdc_counts", "tac_counts", "tdc_counts", "mocap_y_mm"):
+        assert node[key].dtype == ref[key].dtype, key
+        assert node[key].tobytes() == ref[key].tobytes(), f"{key} differs"
+    assert np.array_equal(node["pac_stamps"], np.concatenate([pac_frame_stamps_ns(k) for k in range(steps)]))
+    assert np.array_equal(node["slow_stamps"],
+                          np.maximum(np.concatenate([slow_frame_stamps_ns(k) for k in range(steps)]), 1))
+    assert np.array_equal(node["mocap_stamps"], np.maximum(np.round(ref["mocap_t_s"] * 1e9).astype(np.int64), 1))
+
+
+def concat_outputs(outs):
+    return {key: np.concatenate([getattr(o, key) for o in outs])
+            for key in ("pac_counts", "electrode_counts", "pdc_counts", "tac_counts", "tdc_counts",
+                        "mocap_t_s", "mocap_y_mm")}
+
+
+@pytest.mark.timeout(60)
+def test_node_and_in_process_loop_give_identical_data_for_the_same_seed(graph):
+    steps, seed, material = 30, 11, "abs"
+    commands = {k: GripCommand(normal_force_kpa=round(2.0 + 0.13 * k, 2), period=k) for k in range(steps)}
+    commands[7] = GripCommand(normal_force_kpa=9.9, hold=True, period=7)    # hold keeps the force
+    pzt_off_after = 12                                                     # PZT off from period 13
+
+    def answer(ctl, k):
+        if k == pzt_off_after:
+            ctl.pzt.publish(PztCommand(enabled=False))    # same socket: arrives before the command
+        ctl.grip.publish(commands[k])
+
+    proc = start_rig(graph, scene="paper", material=material, seed=seed, steps=steps,
+                     normal_force_kpa=3.5)
+    ctl = Controller(graph.dir, answer)
+    connect(ctl, proc, ctl.grip)
+    connect(ctl, proc, ctl.pzt)
+    ctl.spin_until(lambda: ctl.ticks() == steps, proc=proc)
+    ctl.spin_until(lambda: len(ctl.got[PztState]) == 2, proc=proc)
+    log = stop(proc)                      # idles after the last period until SIGTERM, exits 0
+
+    # the in-process driver: the same Rig and the same F_N / PZT sequence
+    rig = Rig(load_scene("paper"), material, seed)
+    force, outs = 3.5, []
+    for k in range(steps):
+        outs.append(rig.step_period(force))
+        if k == pzt_off_after:
+            rig.set_injection(False, 0.0)
+        force = force if commands[k].hold else commands[k].normal_force_kpa
+    ref = concat_outputs(outs)
+
+    assert_same_sensor_data(streams_of(ctl.got), ref, steps)
+    assert [m.normal_force_kpa for m in ctl.got[RobotState]] == [o.normal_force_kpa for o in outs]
+    assert outs[8].normal_force_kpa == outs[7].normal_force_kpa          # the hold
+    ticks = ctl.got[ActuatorState]
+    assert [m.step_index for m in ticks] == list(range(steps))
+    assert [m.position_mm for m in ticks] == [o.actuator_mm for o in outs]
+    assert [m.stamp_ns for m in ticks] == [(k + 1) * 500_000_000 for k in range(steps)]
+    assert [m.enabled for m in ctl.got[PztState]] == [True, False]
+    assert not outs[pzt_off_after + 1].pzt_on and outs[pzt_off_after].pzt_on
+    assert all(sub.gaps == 0 and sub.dropped == 0 for sub in ctl.subs.values())
+    assert "ms per period" in log
+    ctl.close()
+
+
+@pytest.mark.timeout(60)
+def test_collection_protocol_reproduces_the_data_set_series(graph):
+    steps, seed = 20, 5
+
+    def go_ahead(ctl, k):                 # in collection the command is only the go-ahead
+        ctl.grip.publish(GripCommand(normal_force_kpa=0.5, period=k))
+
+    proc = start_rig(graph, scene="paper", material="pla", seed=seed, steps=steps,
+                     protocol="collection", exit_when_done="true")
+    ctl = Controller(graph.dir, go_ahead)
+    connect(ctl, proc, ctl.grip)
+    ctl.spin_until(lambda: ctl.ticks() == steps, proc=proc)
+    assert proc.wait(10) == 0             # exit_when_done
+    ref = simulate_series(load_scene("paper"), "pla", seed, steps)
+    assert_same_sensor_data(streams_of(ctl.got), ref, steps)
+    assert np.array_equal([m.normal_force_kpa for m in ctl.got[RobotState]], ref["normal_force_kpa"])
+    ctl.close()
+
+
+def test_lockstep_waits_for_the_grip_command_and_applies_its_force(graph):
+    proc = start_rig(graph, scene="mechanics", steps=5, normal_force_kpa=2.5)
+    ctl = Controller(graph.dir)
+    connect(ctl, proc, ctl.grip)
+    ctl.spin_until(lambda: ctl.ticks() == 1, proc=proc)
+    t = time.monotonic()
+    while time.monotonic() - t < 0.3:     # nothing of period 1 before the answer to period 0
+        ctl.spin_once(0.02)
+    assert ctl.ticks() == 1 and len(ctl.got[RobotState]) == 1
+    ctl.grip.publish(GripCommand(normal_force_kpa=4.2, period=3))     # wrong period: ignored
+    ctl.grip.publish(GripCommand(normal_force_kpa=4.4, period=0))
+    ctl.spin_until(lambda: ctl.ticks() == 2, proc=proc)
+    assert [m.normal_force_kpa for m in ctl.got[RobotState]] == [2.5, 4.4]
+    assert [m.stamp_ns for m in ctl.got[RobotState]] == [1, 500_000_000]
+    assert "ignored GripCommand for period 3" in stop(proc)
+    ctl.close()
+
+
+def test_scene_without_an_effect_does_not_publish_its_topics(graph):
+    proc = start_rig(graph, scene="mechanics", steps=2)
+    deadline = time.monotonic() + 20
+    while True:
+        rigs = [n for n in bus.scan(graph.dir) if n.name == "rig_sim"]
+        if rigs and "/pzt/command" in rigs[0].subscribes:
+            break
+        assert proc.poll() is None and time.monotonic() < deadline
+        time.sleep(0.02)
+    assert sorted(rigs[0].publishes) == ["/actuator/state", "/heartbeat", "/object/pose", "/robot/state"]
+    stop(proc)
+
+
+def test_lockstep_without_a_controller_is_a_fault_naming_the_period(graph):
+    proc = start_rig(graph, scene="mechanics", steps=5, wait_subscribers=0, lockstep_timeout_s=0.3)
+    assert proc.wait(20) == 3
+    assert "no GripCommand(period=0)" in proc.stderr.read().decode()
+
+
+def test_realtime_mode_releases_messages_when_their_stamps_are_due(graph):
+    steps, factor = 4, 10.0              # 2 s of sim time in 0.2 s
+    proc = start_rig(graph, scene="mechanics", steps=steps, lockstep="false",
+                     realtime_factor=factor, exit_when_done="true")
+    ctl = Controller(graph.dir)
+    arrivals = []
+    ctl.create_subscription(ObjectPose, lambda m: arrivals.append((time.monotonic(), m.stamp_ns)),
+                            topic=ObjectPose.TOPIC)
+    ctl.spin_until(lambda: ctl.ticks() == steps, proc=proc)
+    assert proc.wait(10) == 0
+    wall = np.array([a[0] for a in arrivals])
+    sim = np.array([a[1] for a in arrivals]) / 1e9
+    assert len(arrivals) == 60 * steps
+    assert wall[-1] - wall[0] >= 0.8 * (sim[-1] - sim[0]) / factor       # paced, not a burst
+    assert wall[-1] - wall[0] < 3 * (sim[-1] - sim[0]) / factor + 0.2
+    ctl.close()
+
+
+def test_unknown_scene_or_material_is_a_one_line_error(graph):
+    bad_scene = start_rig(graph, scene="no_such_scene")
+    bad_material = start_rig(graph, scene="mechanics", material="granite")
+    assert bad_scene.wait(20) == 2 and bad_material.wait(20) == 2
+    assert "scene not found" in bad_scene.stderr.read().decode()
+    assert "'granite' is not in scene 'mechanics'" in bad_material.stderr.read().decode()
