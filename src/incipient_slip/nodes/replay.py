@@ -9,7 +9,7 @@ Pacing follows the messages' stamps, each topic anchored where it starts in rece
 so a recording made faster than real time (lock-step sim) plays back at sim time x `rate`;
 `max_speed` drops pacing. Messages go out in the recording's receive order. `/heartbeat` is
 not replayed unless named in `topics` (the replay node beats for itself). When the recording
-ends the node exits 0, unless `loop`.
+ends the node exits 0 (unless `loop`), after its subscribers left or `end_hold_s` passed.
 """
 from __future__ import annotations
 
@@ -40,7 +40,7 @@ class Replay(Node):
 
     PARAMS = {"path": "", "rate": 1.0, "max_speed": False, "loop": False, "topics": [],
               "skip_topics": ["/heartbeat"], "wait_subscribers": 1, "wait_timeout_s": 10.0,
-              "progress": False}
+              "end_hold_s": 1.0, "progress": False}
 
     def __init__(self, **kwargs):
         super().__init__("replay", **kwargs)
@@ -113,6 +113,20 @@ class Replay(Node):
         finally:
             bar.close()
 
+    def hold(self) -> None:
+        """Stays in the graph until every subscriber left, or for `end_hold_s` at most.
+
+        Leaving the graph makes subscribers disconnect from this node, and ZeroMQ discards
+        what they had received but not yet read: leaving at once would cut off the tail of
+        the recording at a slow subscriber. A subscriber that ends by itself (a recorder
+        with max_messages, a monitor with expect_count) releases the replay at once.
+        """
+        deadline = time.monotonic() + self.param("end_hold_s")
+        while not self.stopping and time.monotonic() < deadline:
+            if not any(pub.subscriber_count() for pub in self.pubs.values()):
+                return
+            self.spin_once(POLL_S)
+
     def spin(self) -> int:
         """Waits for subscribers, plays (again and again if `loop`), then ends the node."""
         self.wait_for_subscribers()
@@ -120,6 +134,7 @@ class Replay(Node):
             self.play_once()
             if not self.param("loop"):
                 break
+        self.hold()
         self.shutdown(f"played {self.published} messages from {self.path}"
                       + (f", skipped {self.skipped} malformed" if self.skipped else ""))
         return super().spin()
