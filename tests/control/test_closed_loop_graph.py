@@ -1,0 +1,197 @@
+"""The closed loop as real processes over loopback ipc: launch exit codes, safety and faults.
+
+Each test runs rig_sim / grip_controller / supervisor (and the estimator where it matters) as
+separate processes in a private graph (`graph` fixture); a test node in this process stands in
+for the estimator where the test must choose what the controller hears. Handshakes, never
+sleeps: publishers wait for their subscribers (XPUB) before the first message.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from incipient_slip import control
+from incipient_slip.messages import GripCommand, Heartbeat, ObjectPose, RobotState, RunEvent, SlipEstimate
+from incipient_slip.nodes import bus
+from incipient_slip.nodes.runtime import Node
+
+PERIOD_NS = 500_000_000
+
+
+def launch_cmd(*args):
+    return [sys.executable, "-m", "incipient_slip.nodes.launcher", "stabilize.yaml", *args]
+
+
+def finish(proc, timeout=45):
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, err = proc.communicate()
+        pytest.fail(f"launch did not end within {timeout} s:\n{err.decode()[-3000:]}")
+    return proc.returncode, out.decode(), err.decode()
+
+
+class FakeEstimator(Node):
+    """Publishes the estimate of period k from `script(k)` when the rig starts period k (its
+    RobotState), and records every GripCommand and Heartbeat it hears."""
+
+    def __init__(self, graph_dir, script):
+        super().__init__("fake_estimator", graph_dir=graph_dir, heartbeat_s=0)
+        self.script = script
+        self.estimate_pub = self.create_publisher(SlipEstimate)
+        self.raw_pub = self.create_raw_publisher(SlipEstimate.TOPIC)
+        self.commands: list[GripCommand] = []
+        self.heartbeats: list[Heartbeat] = []
+        self.create_subscription(RobotState, self.on_robot)
+        self.create_subscription(ObjectPose, lambda msg: None)   # so the rig's handshake completes
+        self.create_subscription(GripCommand, self.commands.append)
+        self.create_subscription(Heartbeat, self.heartbeats.append)
+
+    def on_robot(self, msg: RobotState):
+        k = msg.stamp_ns // PERIOD_NS
+        for estimate in self.script(self, k):
+            if isinstance(estimate, bytes):
+                self.raw_pub.publish_raw(estimate)
+            else:
+                self.estimate_pub.publish(estimate)
+
+    def spin_until(self, predicate, procs, timeout_s=30.0):
+        deadline = time.monotonic() + timeout_s
+        while not predicate():
+            for p in procs:
+                assert p.poll() is None or predicate(), f"a node exited: {p.args}\n{p.stderr.read().decode()[-2000:]}"
+            assert time.monotonic() < deadline, "timed out"
+            self.spin_once(0.02)
+
+
+def start_loop(graph, script, steps, controller_params=()):
+    """rig_sim (mechanics scene, lock-step) + grip_controller as processes; this process plays
+    the estimator. Returns (fake estimator node, [processes])."""
+    node = FakeEstimator(graph.dir, script)
+    ctrl = graph.spawn(["python", "-m", "incipient_slip.nodes.grip_controller", "method:=injection",
+                        *controller_params])
+    # the controller is connected before the rig starts: its estimate subscription is counted
+    deadline = time.monotonic() + 20
+    while not node.estimate_pub.wait_for_subscribers(1, 0.1):
+        assert ctrl.poll() is None, ctrl.stderr.read().decode()
+        assert time.monotonic() < deadline, "controller never subscribed"
+    # and we hear it (its heartbeat), so its first command cannot be lost
+    node.spin_until(lambda: any(h.node == "grip_controller" for h in node.heartbeats), [ctrl], 20)
+    rig = graph.spawn(["python", "-m", "incipient_slip.nodes.rig_sim", "scene:=mechanics",
+                       f"steps:={steps}", "wait_subscribers:=1", "lockstep_timeout_s:=20"])
+    return node, [ctrl, rig]
+
+
+def valid(k, s):
+    return SlipEstimate(stick_ratio=s, valid=True, method="injection", period=k,
+                        window_end_ns=(k + 1) * PERIOD_NS, stamp_ns=(k + 1) * PERIOD_NS)
+
+
+@pytest.mark.timeout(60)
+def test_launch_without_estimator_runs_to_the_end_and_exits_with_the_supervisor_code(graph, tmp_path):
+    summary = tmp_path / "run.json"
+    proc = graph.spawn(launch_cmd("method:=none", "steps:=40", f"summary:={summary}"))
+    rc, out, err = finish(proc)
+    result = json.loads(summary.read_text())
+    assert rc == 0, err[-3000:]
+    assert result["outcome"] == "success" and result["steps"] == 40
+    assert len(result["traces"]["travel_mm"]) == 40
+    assert "SUCCESS" in out
+
+
+@pytest.mark.timeout(60)
+def test_launch_returns_failure_code_when_the_object_slips(graph, tmp_path):
+    summary = tmp_path / "run.json"
+    proc = graph.spawn(launch_cmd("method:=none", "end_on_failure:=true", f"summary:={summary}"))
+    rc, out, err = finish(proc)
+    result = json.loads(summary.read_text())
+    assert rc == 1 and result["outcome"] == "failure"
+    assert result["final_travel_mm"] > control.FAILURE_TRAVEL_MM
+
+
+@pytest.mark.timeout(60)
+def test_nan_and_out_of_range_estimates_are_rejected_and_the_force_held(graph):
+    bad = {1: float("nan"), 2: 1.5, 3: -0.2, 4: float("inf")}
+
+    def script(node, k):
+        if k in bad:
+            return [valid(k, bad[k])]
+        if k == 5:
+            return [SlipEstimate(stick_ratio=0.2, valid=False, method="injection", period=k,
+                                 reason="seq gap", stamp_ns=(k + 1) * PERIOD_NS)]
+        return [valid(k, 0.1 if k >= 6 else control.DEFAULT_TARGET_STICK_RATIO)]
+
+    node, procs = start_loop(graph, script, steps=8)
+    node.spin_until(lambda: len(node.commands) >= 8, procs)
+    by_period = {c.period: c for c in node.commands}
+    start = by_period[0].normal_force_kpa
+    for k in (1, 2, 3, 4, 5):
+        assert by_period[k].hold and by_period[k].reason, by_period[k]
+        assert by_period[k].normal_force_kpa == start
+    assert "outside [0, 1]" in by_period[2].reason and "not finite" in by_period[4].reason
+    assert not by_period[6].hold and by_period[6].normal_force_kpa > start   # low s raises F_N
+
+
+@pytest.mark.timeout(60)
+def test_random_estimates_never_push_the_force_past_the_limit_or_the_rate(graph):
+    rng = np.random.default_rng(7)
+    values = rng.choice([np.nan, np.inf, -1.0, 2.0, 0.0, 0.0, 0.05, 1.0], size=60)
+    values = np.where(rng.random(60) < 0.5, rng.random(60) * 0.2, values)   # mostly "slipping"
+
+    def script(node, k):
+        return [valid(k, float(values[k]))]
+
+    node, procs = start_loop(graph, script, steps=60, controller_params=["k:=50.0"])
+    node.spin_until(lambda: len(node.commands) >= 60, procs)
+    forces = [c.normal_force_kpa for c in sorted(node.commands, key=lambda c: c.period)]
+    assert max(forces) <= control.SAFETY_LIMIT_KPA
+    assert max(abs(np.diff(forces))) <= control.DEFAULT_MAX_STEP_KPA + 1e-9
+    assert max(forces) == control.SAFETY_LIMIT_KPA     # the gain is high enough to reach it
+
+
+@pytest.mark.timeout(60)
+def test_flood_of_malformed_estimates_is_dropped_counted_and_leaves_the_force(graph):
+    flood = [b"\x00garbage", b"\xc1", os.urandom(64), b"\x81\xa4type\xa3Bad"] * 250   # 1000 frames
+
+    def script(node, k):
+        if k == 2:
+            return flood + [valid(k, control.DEFAULT_TARGET_STICK_RATIO)]
+        return [valid(k, control.DEFAULT_TARGET_STICK_RATIO)]
+
+    node, procs = start_loop(graph, script, steps=6)
+    node.spin_until(lambda: len(node.commands) >= 6, procs)
+    node.spin_until(lambda: any(h.node == "grip_controller" and h.malformed_dropped >= len(flood)
+                                for h in node.heartbeats), procs, timeout_s=5)
+    forces = {c.normal_force_kpa for c in node.commands}
+    assert forces == {control.DEFAULT_INITIAL_FORCE_KPA}
+    assert not any(c.hold for c in node.commands if c.period >= 1)
+    assert procs[0].poll() is None        # the controller survived
+
+
+@pytest.mark.timeout(60)
+def test_stale_estimates_make_the_controller_hold_within_one_period(graph):
+    def script(node, k):
+        return [] if k >= 3 else [valid(k, 0.1)]   # the estimator goes silent at period 3
+
+    node, procs = start_loop(graph, script, steps=6)
+    node.spin_until(lambda: len(node.commands) >= 6, procs)
+    by_period = {c.period: c for c in node.commands}
+    for k in (3, 4, 5):
+        assert by_period[k].hold and by_period[k].reason == "stale estimate"
+        assert by_period[k].normal_force_kpa == by_period[2].normal_force_kpa   # never ramps
+
+
+def test_ur5_backend_is_a_clear_error(graph):
+    proc = subprocess.run([sys.executable, "-m", "incipient_slip.nodes.grip_controller", "robot:=ur5"],
+                          capture_output=True, text=True, timeout=30, env=graph.env)
+    assert proc.returncode == 2
+    assert "UR5" in proc.stderr and "not available yet" in proc.stderr
