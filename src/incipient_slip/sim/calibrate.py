@@ -94,15 +94,19 @@ def no_control(scene: Scene, fn_kpa: float = 2.94, seeds: int = 10, seed: int = 
     mech = subset(scene, MECHANICS)
     res = {}
     for mi, mat in enumerate(scene.materials):
-        ys, ks = [], []
+        ys, ks, yslide = [], [], []
         for j in range(seeds):
             rig = Rig(mech, mat, series_seed(seed, 100 * mi + j))
+            y_fail = None
             for o in run_constant(rig, fn_kpa, steps):
-                if o.object_y_mm > 1.5:
+                if y_fail is None and o.object_y_mm > 1.5:
+                    y_fail, k_fail = o.object_y_mm, o.period_index
+                if o.gross_slip:
+                    yslide.append(o.object_y_mm)
                     break
-            ys.append(o.object_y_mm)
-            ks.append(o.period_index)
-        res[mat] = (float(np.mean(ys)), float(np.mean(ks)))
+            ys.append(y_fail if y_fail is not None else o.object_y_mm)
+            ks.append(k_fail if y_fail is not None else o.period_index)
+        res[mat] = (float(np.mean(ys)), float(np.mean(ks)), float(np.mean(yslide)) if yslide else float("nan"))
     return res
 
 
@@ -237,6 +241,8 @@ def report_markdown(scene: Scene, res: dict) -> str:
         f"| Pearson R, 200 Hz band vs F_T at fixed F_N (median, min..max over 5 materials x 3 F_N) | 0.97 | {r[0]:.3f} ({r[1]:.3f}..{r[2]:.3f}) |",
         f"| final y with no control (F_N = 2.94 kPa, run ends when y > 1.5 mm) | 2.48 mm | {ycn:.2f} mm "
         f"({', '.join(f'{m} {v[0]:.2f}' for m, v in nc.items())}) |",
+        f"| y after the first gross slide at 2.94 kPa (run not stopped) | (2.48 mm, other reading) | "
+        f"{np.nanmean([v[2] for v in nc.values()]):.2f} mm |",
         f"| gross slip within 23 mm at every F_N 1.1..5.9 kPa, every material | yes | "
         f"{'yes' if np.isfinite(worst) and worst <= 23.0 else 'NO'} (latest onset at actuator {worst:.1f} mm) |",
         f"| mean onset period (label rule) / series without onset | - | {res['onset_period'][0]:.0f} / {res['onset_period'][1]:.0%} |",

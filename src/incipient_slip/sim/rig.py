@@ -182,7 +182,7 @@ class Rig:
         # slow channels share one 12-bit conversion: columns E1..E19, P_DC, T_AC, T_DC
         elec = pdc = tac = tdc = None
         if self.n_slow_cols:
-            slow = np.empty((self.n_slow, 22))
+            slow = np.zeros((self.n_slow, 22))
             if self.electrodes is not None:
                 slow[:, :19] = self.electrodes(self.rng["electrodes"], self.n_slow, fn_kpa if in_contact else 0.0, a_mm, shift)
             if self.scene.has("pdc"):
