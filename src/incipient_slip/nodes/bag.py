@@ -19,7 +19,7 @@ import time
 from dataclasses import dataclass, field
 from typing import IO, Iterable, Iterator
 
-from incipient_slip.messages import (MESSAGE_TYPES, Message, MessageError, decode_any, encode)
+from incipient_slip.messages import MESSAGE_TYPES, Message, decode_any, encode
 
 __all__ = ["BagError", "BagRecord", "BagWriter", "TopicInfo", "BagInfo", "read_bag", "bag_info",
            "json_schema", "MESSAGE_ENCODING", "SCHEMA_ENCODING", "PROFILE"]
@@ -353,11 +353,3 @@ def bag_info(path: str | os.PathLike) -> BagInfo:
     return BagInfo(path, os.path.getsize(path), profile,
                    sorted(topics.values(), key=lambda t: t.topic))
 
-
-def check_messages(path: str | os.PathLike, records: Iterable[BagRecord]) -> Iterator[tuple[BagRecord, Message]]:
-    """(record, decoded message) pairs; BagError naming file, topic and field on a bad body."""
-    for rec in records:
-        try:
-            yield rec, rec.message()
-        except MessageError as exc:
-            raise BagError(path, f"message at log time {rec.log_time_ns} ns: {exc}") from None

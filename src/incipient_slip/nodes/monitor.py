@@ -13,6 +13,7 @@ to write the summary to, for scripts and tests.
 from __future__ import annotations
 
 import json
+import os
 import time
 from dataclasses import dataclass
 
@@ -92,8 +93,9 @@ class Monitor(Node):
 
     def publishers_alive(self) -> bool:
         """True while some other node of the graph announces one of the topics seen."""
+        # Node has no public graph directory; _dir is where this node announced itself.
         return any(set(info.publishes) & set(self.stats)
-                   for info in bus.scan(bus.graph_dir(), clean=False) if info.pid != self._info.pid)
+                   for info in bus.scan(self._dir, clean=False) if info.pid != os.getpid())
 
     def check_end(self) -> None:
         now = time.monotonic()
