@@ -20,12 +20,16 @@ command; `hold=True` keeps the current force); `collection` redraws F_N each per
 a data set is `sim.rig.series_seed(dataset_seed, i)`). `/pzt/command` switches the injection
 from the next period on; `injection_db` (default: the scene's) sets it at the start.
 
-`lockstep: true`: before period 0 it waits until every topic it publishes has
-`wait_subscribers` subscribers (XPUB handshake), then starts period k+1 only when
-`GripCommand(period=k)` has arrived (in `collection` the command is only the go-ahead, its
-force is not used). No command within `lockstep_timeout_s` (wall clock; 0 waits forever) is a
-fault: the node exits 3 naming the period. `lockstep: false`: real time x `realtime_factor`,
-each message released when its stamp is due, the latest command applies to the next period.
+Before period 0 it waits until each topic of `wait_topics` (default: every topic it publishes)
+has `wait_subscribers` subscribers (XPUB handshake; after `wait_timeout_s` it warns and starts).
+A launch that leaves a topic unread (e.g. /biotac/slow with an injection estimator and no
+recorder) lists the topics its nodes read, or the rig waits the whole timeout for nobody.
+
+`lockstep: true`: it starts period k+1 only when `GripCommand(period=k)` has arrived (in
+`collection` the command is only the go-ahead, its force is not used). No command within
+`lockstep_timeout_s` (wall clock; 0 waits forever) is a fault: the node exits 3 naming the
+period. `lockstep: false`: real time x `realtime_factor`, each message released when its stamp
+is due, the latest command applies to the next period.
 
 After `steps` periods it publishes nothing more and idles until SIGTERM (the supervisor ends a
 run), or exits 0 when `exit_when_done`.
@@ -84,6 +88,7 @@ class RigSim(Node):
         "lockstep_timeout_s": 30.0,
         "realtime_factor": 1.0,
         "wait_subscribers": 1,
+        "wait_topics": [],                # [] = every topic it publishes
         "wait_timeout_s": 10.0,
         "exit_when_done": False,
     }
@@ -161,6 +166,13 @@ class RigSim(Node):
         deadline = time.monotonic() + timeout
         pubs = [pub for pub in (self.pac_pub, self.slow_pub, self.pose_pub, self.pzt_pub,
                                 self.robot_pub, self.tick_pub) if pub is not None]
+        if self.param("wait_topics"):
+            wanted = {self.resolve_topic(t) for t in self.param("wait_topics")}
+            unknown = wanted - {pub.topic for pub in pubs}
+            if unknown:
+                self.warn(f"wait_topics {sorted(unknown)} are not published in scene "
+                          f"{self.rig.scene.name!r}; not waiting for them")
+            pubs = [pub for pub in pubs if pub.topic in wanted]
         lonely = [pub.topic for pub in pubs
                   if not pub.wait_for_subscribers(n, max(0.0, deadline - time.monotonic()))]
         if lonely and not self.stopping:
