@@ -4,20 +4,31 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
-from .sos import sosfilt_state
+from .sos import SosFilter
 
 
 class AmbientNoise:
     """Low-pass filtered machine noise (rms_pa) plus white sensor noise (sensor_noise_pa), in Pa."""
 
-    def __init__(self, p: dict, fs_hz: float):
+    def __init__(self, p: dict, fs_hz: float, n: int, block: int = 32):
         self.sos = signal.butter(2, p["corner_hz"], btype="lowpass", fs=fs_hz, output="sos")
         impulse = signal.sosfilt(self.sos, np.r_[1.0, np.zeros(8191)])
         self.scale = p["rms_pa"] / np.sqrt(np.sum(impulse**2))   # white unit noise -> rms_pa
         self.sensor_pa = p["sensor_noise_pa"]
-        self.zi = np.zeros((self.sos.shape[0], 2))
+        self.filter = SosFilter(self.sos)
+        self.n, self.block = n, block
+        self.buf = np.empty((0, n))
+        self.i = 0
 
-    def __call__(self, rng: np.random.Generator, n: int) -> np.ndarray:
-        w = rng.standard_normal((2, n))
-        y, self.zi = sosfilt_state(self.sos, w[0], self.zi)
-        return y * self.scale + w[1] * self.sensor_pa
+    def next(self, rng: np.random.Generator) -> np.ndarray:
+        """Return the next period's ambient + sensor noise (n,) in Pa; generated in blocks of
+        periods (LTI filter with carried state: identical to period-by-period filtering)."""
+        if self.i >= len(self.buf):
+            w = rng.standard_normal((2, self.block * self.n))
+            y = self.filter.filter_inplace(w[0].copy())
+            y *= self.scale
+            y += w[1] * self.sensor_pa
+            self.buf = y.reshape(self.block, self.n)
+            self.i = 0
+        self.i += 1
+        return self.buf[self.i - 1]

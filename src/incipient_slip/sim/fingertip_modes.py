@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
-from .sos import sosfilt_state
+from .sos import SosFilter
 
 
 def mode_state(p: dict, a_mm: float, stick_ratio: float, material_damping: float = 0.0):
@@ -43,10 +43,15 @@ class ModalPath:
     """The fingertip's modal filter with carried state."""
 
     def __init__(self, p: dict, fs_hz: float):
-        self.p, self.fs = p, fs_hz
-        self.zi = np.zeros((len(p["freq_hz"]), 2))
+        self.fs = fs_hz
+        self.p = {k: (np.asarray(v, float) if isinstance(v, list) else v) for k, v in p.items()}
+        self.filter = SosFilter(np.zeros((len(p["freq_hz"]), 6)))
+
+    @property
+    def zi(self) -> np.ndarray:
+        return self.filter.zi
 
     def __call__(self, x: np.ndarray, a_mm: float, stick_ratio: float, material_damping: float = 0.0) -> np.ndarray:
+        """Filter x (contiguous float64, modified in place) with the modes of this contact state."""
         sos = mode_sos(self.p, *mode_state(self.p, a_mm, stick_ratio, material_damping), self.fs)
-        y, self.zi = sosfilt_state(sos, x, self.zi)
-        return y
+        return self.filter.filter_inplace(x, sos)

@@ -1,10 +1,13 @@
-"""PZT vibration injection: Gaussian noise 10^(I/20) N(0,1), band-limited 10-1100 Hz."""
+"""PZT vibration injection: Gaussian noise eps ~ 10^(I/20) N(0,1), band-limited 10-1100 Hz.
+
+The rig scales the band-limited unit noise by pa_per_unit * 10^(I/20) each period.
+"""
 from __future__ import annotations
 
 import numpy as np
 from scipy import signal
 
-from .sos import sosfilt_state
+from .sos import SosFilter
 
 
 def band_sos(p: dict, fs_hz: float) -> np.ndarray:
@@ -17,18 +20,26 @@ def band_sos(p: dict, fs_hz: float) -> np.ndarray:
     return sos
 
 
-def noise_pa(rng: np.random.Generator, n: int, intensity_db: float, pa_per_unit: float) -> np.ndarray:
-    """Return n samples of the unfiltered PZT drive in Pa: pa_per_unit 10^(I/20) N(0, 1)."""
-    return rng.standard_normal(n) * (pa_per_unit * 10.0 ** (intensity_db / 20.0))
+class PztSource:
+    """Band-limited unit noise, generated and filtered `block` periods at a time (the band
+    filter is linear and time-invariant with carried state, so one call over a block equals
+    period-by-period calls); the PZT amplifier gain 10^(I/20) is applied per period after it."""
 
+    def __init__(self, p: dict, fs_hz: float, n: int, block: int = 32):
+        self.filter = SosFilter(band_sos(p, fs_hz))
+        self.n, self.block = n, block
+        self.buf = np.empty((0, n))
+        self.i = 0
 
-class BandFilter:
-    """A second-order-section filter with carried state, one call per period."""
+    @property
+    def zi(self) -> np.ndarray:
+        return self.filter.zi
 
-    def __init__(self, sos: np.ndarray):
-        self.sos = sos
-        self.zi = np.zeros((sos.shape[0], 2))
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        y, self.zi = sosfilt_state(self.sos, x, self.zi)
-        return y
+    def next(self, rng: np.random.Generator) -> np.ndarray:
+        """Return the next period's band-limited unit noise (n,)."""
+        if self.i >= len(self.buf):
+            x = rng.standard_normal(self.block * self.n)
+            self.buf = self.filter.filter_inplace(x).reshape(self.block, self.n)
+            self.i = 0
+        self.i += 1
+        return self.buf[self.i - 1]

@@ -23,7 +23,7 @@ from . import adc, contact, partial_slip, stick_slip
 from .ambient_noise import AmbientNoise
 from .electrodes import Electrodes
 from .fingertip_modes import ModalPath
-from .injection import BandFilter, band_sos, noise_pa
+from .injection import PztSource
 from .mocap import mocap_samples
 from .pdc import pdc_counts
 from .scene import Scene, load_scene  # noqa: F401  (re-exported)
@@ -102,10 +102,10 @@ class Rig:
         self.prev_sar = 1.0
         has = scene.has
         self.has_pac = has("injection") or has("vibrotactile") or has("ambient_noise")
-        self.band = BandFilter(band_sos(p["injection"], self.fs)) if has("injection") else None
+        self.band = PztSource(p["injection"], self.fs, self.n_pac) if has("injection") else None
         self.modes = ModalPath(p["fingertip_modes"], self.fs) if has("fingertip_modes") else None
-        self.ambient = AmbientNoise(p["ambient_noise"], self.fs) if has("ambient_noise") else None
-        self.electrodes = Electrodes(p["electrodes"]) if has("electrodes") else None
+        self.ambient = AmbientNoise(p["ambient_noise"], self.fs, self.n_pac) if has("ambient_noise") else None
+        self.electrodes = Electrodes(p["electrodes"], self.n_slow) if has("electrodes") else None
         self.n_slow_cols = has("electrodes") or has("pdc") or has("temperature")
         self.pzt_on = has("injection")
         self.pzt_db = scene.injection_db
@@ -161,21 +161,20 @@ class Rig:
             n = self.n_pac
             x = np.zeros(n)
             if self.band is not None:
-                drive = noise_pa(self.rng["injection"], n, self.pzt_db, p["injection"]["pa_per_unit"])
-                filtered = self.band(drive)
+                unit = self.band.next(self.rng["injection"])       # drawn even when off: streams stay aligned
                 if self.pzt_on:
-                    x += filtered
+                    x += unit * (p["injection"]["pa_per_unit"] * 10.0 ** (self.pzt_db / 20.0))
             if self.scene.has("vibrotactile"):
                 x += bursts_pa(self.rng["vibrotactile"], n, self.fs, p["vibrotactile"], self.prev_sar - sar,
                                slide_s, slide_t0, self.roughness, p["injection"]["pa_per_unit"])
             if self.modes is not None:
                 n_split = min(n, int(math.ceil((slide_t0 + slide_s) * self.fs))) if gross else 0
                 if n_split:
-                    x[:n_split] = self.modes(x[:n_split], a_mm, 0.0, self.material_damping)
+                    self.modes(x[:n_split], a_mm, 0.0, self.material_damping)
                 if n_split < n:
-                    x[n_split:] = self.modes(x[n_split:], a_mm, s_ratio, self.material_damping)
+                    self.modes(x[n_split:], a_mm, s_ratio, self.material_damping)
             if self.ambient is not None:
-                x += self.ambient(self.rng["ambient"], n)
+                x += self.ambient.next(self.rng["ambient"])
             if not np.all(np.isfinite(x)):
                 raise SimulationError(f"step {k_step}: non-finite P_AC (F_N={fn_kpa} kPa, s={s_ratio})")
             pac = adc.pac_to_counts(x, p["adc"]["pac_pa_per_count"], p["adc"]["pac_range_pa"])

@@ -25,3 +25,27 @@ def sosfilt_state(sos: np.ndarray, x: np.ndarray, zi: np.ndarray) -> tuple[np.nd
     z = np.array(zi, dtype=np.float64, order="C").reshape(1, -1, 2)
     _kernel(np.ascontiguousarray(sos, dtype=np.float64), y, z)
     return y.reshape(-1), z.reshape(-1, 2)
+
+
+class SosFilter:
+    """Sections with carried state for repeated calls; filters a float64 buffer in place."""
+
+    def __init__(self, sos: np.ndarray):
+        self.sos = np.ascontiguousarray(sos, dtype=np.float64)
+        self.z = np.zeros((1, self.sos.shape[0], 2))
+
+    @property
+    def zi(self) -> np.ndarray:
+        """Return the current section states (n_sections, 2)."""
+        return self.z[0]
+
+    def filter_inplace(self, x: np.ndarray, sos: np.ndarray | None = None) -> np.ndarray:
+        """Filter the contiguous float64 1-D array x in place (optionally with new coefficients
+        `sos` of the same shape; the state carries over) and return it."""
+        if sos is not None:
+            self.sos = np.ascontiguousarray(sos, dtype=np.float64)
+        if _kernel is None:
+            x[:], self.z[0] = signal.sosfilt(self.sos, x, zi=self.z[0])
+            return x
+        _kernel(self.sos, x.reshape(1, -1), self.z)
+        return x
