@@ -128,3 +128,9 @@ def test_estimate_window_matches_the_model_on_phi(series):
     w = series.pac_counts[:2200]
     assert estimate_window(model, w) == pytest.approx(model.predict(
         series_features(series, model.spec, [1.0]))[0], abs=1e-6)
+
+
+def test_limit_blas_threads_returns_a_controller():
+    from incipient_slip.models.estimator_core import limit_blas_threads
+    with limit_blas_threads(1):
+        pass

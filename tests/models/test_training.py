@@ -71,3 +71,19 @@ def test_vibrotactile_method_refuses_a_data_set_with_injection(fake_injection_di
     from incipient_slip.models.dataset import DatasetError
     with pytest.raises(DatasetError, match="injection"):
         load_windows(fake_injection_dir, feature_spec("vibrotactile"), progress=False)
+
+
+def test_chunked_nystroem_ridge_equals_sklearn_nystroem_plus_ridge():
+    from sklearn.kernel_approximation import Nystroem
+    from sklearn.linear_model import Ridge
+    from incipient_slip.models.training import (nystroem_basis, nystroem_solve, nystroem_sums,
+                                                rbf_kernel)
+    rng = np.random.default_rng(3)
+    Z = rng.normal(size=(500, 6))
+    y = np.sin(Z[:, 0]) + 0.1 * rng.normal(size=500)
+    centers, norm = nystroem_basis(Z, 50, 0.2)
+    w, b = nystroem_solve(nystroem_sums(Z, y, centers, norm, 0.2, chunk=64), norm, 1e-3)
+    ny = Nystroem(gamma=0.2, n_components=50).fit(centers)   # same landmarks
+    F = ny.transform(Z)
+    ridge = Ridge(alpha=1e-3 * len(Z)).fit(F, y)
+    np.testing.assert_allclose(rbf_kernel(Z, centers, 0.2) @ w + b, ridge.predict(F), atol=1e-6)

@@ -236,7 +236,8 @@ def _reproduce(args) -> int:
     out = args.out or runs_dir() / ("estimation-quick" if quick else "estimation")
     docs = args.docs or (None if quick else repo_root() / "docs")
     steps = 200 if quick else 450    # quick: shorter series (gross slip still happens by ~120)
-    dirs = {sc: ensure_dataset(sc, n, args.seed, out / "data" / f"{sc}_{n}_s{args.seed}_{steps}", steps=steps)
+    data_root = (args.out / "data") if args.out else runs_dir() / "data"   # shared with accuracy-vs-time
+    dirs = {sc: ensure_dataset(sc, n, args.seed, data_root / f"{sc}_{n}_s{args.seed}_{steps}", steps=steps)
             for sc in ("paper", "no_injection")}
     max_train = args.max_train or (1000 if quick else 8000)
     grid_max = 600 if quick else 2000

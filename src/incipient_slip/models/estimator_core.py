@@ -30,7 +30,7 @@ from .features import FEATURE_CODE_VERSION, N_ELECTRODES, FeatureSpec, phi
 from .modelfile import Model, ModelFileError, read_model_file
 
 __all__ = ["Model", "ModelFileError", "StreamError", "Estimate", "StreamingEstimator",
-           "load_model", "default_model_path", "estimate_window"]
+           "load_model", "default_model_path", "estimate_window", "limit_blas_threads"]
 
 PAC_FRAME_SAMPLES = 22
 OK, FILLING, SEQ_GAP, STALE, BACKWARDS, NO_DATA = (
@@ -45,6 +45,16 @@ class Estimate(NamedTuple):
     stick_ratio: float     # in [0, 1]; nan when invalid
     valid: bool
     reason: str            # "ok" or why the estimate is invalid
+
+
+def limit_blas_threads(n: int = 1):
+    """Limit BLAS/OpenMP threads of this process to n; returns the threadpoolctl controller.
+
+    One window is a small matrix product: a multi-threaded BLAS only adds wake-up latency (and
+    on a busy 2-core machine, tail latency), so the estimator node calls this once at start.
+    """
+    from threadpoolctl import threadpool_limits
+    return threadpool_limits(limits=n)
 
 
 def default_model_path(method: str) -> Path:

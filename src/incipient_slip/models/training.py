@@ -204,16 +204,57 @@ def model_from_svr(svr, mean, scale, spec) -> Model:
                  coef0=float(svr.coef0), degree=int(svr.degree))
 
 
+def rbf_kernel(Z: np.ndarray, centers: np.ndarray, gamma: float) -> np.ndarray:
+    """Return exp(-gamma |z - c|^2) for all rows of Z against all centres."""
+    sq = (Z * Z).sum(1)[:, None] + (centers * centers).sum(1)[None] - 2.0 * Z @ centers.T
+    return np.exp(-gamma * np.maximum(sq, 0.0))
+
+
+def nystroem_basis(Z, n_components, gamma, seed=SPLIT_SEED):
+    """Return (centers, N) for RBF Nystroem: seeded landmark rows and N = K(C, C)^(-1/2)."""
+    n_components = min(n_components, len(Z))
+    rng = np.random.default_rng(seed)
+    centers = Z[np.sort(rng.choice(len(Z), n_components, replace=False))]
+    u, sv, vt = np.linalg.svd(rbf_kernel(centers, centers, gamma))
+    return centers, (u / np.sqrt(np.maximum(sv, 1e-12))) @ vt
+
+
+def nystroem_sums(Z, y, centers, norm, gamma, chunk=20000) -> dict:
+    """Return the additive sums (F^T F, F^T y, sum F, sum y, n) of the Nystroem features F."""
+    k = len(centers)
+    out = {"A": np.zeros((k, k)), "b": np.zeros(k), "f": np.zeros(k), "y": 0.0, "n": 0}
+    for a in range(0, len(Z), chunk):
+        F = rbf_kernel(Z[a:a + chunk], centers, gamma) @ norm.T
+        out["A"] += F.T @ F
+        out["b"] += F.T @ y[a:a + chunk]
+        out["f"] += F.sum(0)
+        out["y"] += float(np.sum(y[a:a + chunk]))
+        out["n"] += len(F)
+    return out
+
+
+def nystroem_solve(sums: dict, norm, alpha: float):
+    """Return (weights, intercept) of ridge with per-window penalty alpha, folded through N."""
+    n = sums["n"]
+    fmean, ymean = sums["f"] / n, sums["y"] / n
+    A_c = sums["A"] / n - np.outer(fmean, fmean)
+    b_c = sums["b"] / n - fmean * ymean
+    beta = np.linalg.solve(A_c + alpha * np.eye(len(b_c)), b_c)
+    return norm.T @ beta, ymean - float(fmean @ beta)
+
+
 def fit_nystroem(Z, y, gamma, n_components, alpha, seed=SPLIT_SEED):
-    """Return (centers, weights, intercept) of RBF Nystroem features + ridge on standardized Z."""
-    from sklearn.kernel_approximation import Nystroem
-    from sklearn.linear_model import Ridge
-    ny = Nystroem(kernel="rbf", gamma=gamma, n_components=min(n_components, len(Z)),
-                  random_state=seed).fit(Z)
-    F = ny.transform(Z)
-    ridge = Ridge(alpha=alpha).fit(F, y)
-    weights = ny.normalization_.T @ ridge.coef_
-    return ny.components_, weights, float(ridge.intercept_)
+    """Return (centers, weights, intercept): RBF Nystroem features + ridge, as one kernel expansion.
+
+    The ridge normal equations are accumulated chunk by chunk (memory: chunk x n_components,
+    whatever the number of windows); weights = N^T beta folds the map back into the kernel form.
+    """
+    centers, norm = nystroem_basis(Z, n_components, gamma, seed)
+    w, b = nystroem_solve(nystroem_sums(Z, y, centers, norm, gamma), norm, alpha)
+    return centers, w, b
+
+
+NYSTROEM_ALPHAS = (1e-5, 1e-4, 1e-3, 1e-2)
 
 
 @dataclass
@@ -255,15 +296,20 @@ def train_model(ws: WindowSet, kind: str = "svr", max_train: int | None = 6000,
         Z = (X - mean) / scale
         gamma = params.get("gamma") if params.get("kernel") == "rbf" else 1.0 / X.shape[1]
         gamma = float(gamma)
-        alphas = (1e-3, 1e-2, 1e-1, 1.0)
-        tr, va = next(grouped_folds(groups, 5))
-        scores = []
-        for a in alphas:
-            c, w, b = fit_nystroem(Z[tr], y[tr], gamma, n_components, a)
-            scores.append(_rmse(_kernel_predict(Z[va], c, w, b, gamma), y[va]))
-        alpha = alphas[int(np.argmin(scores))]
         t1 = time.perf_counter()
-        centers, weights, b = fit_nystroem(Z, y, gamma, n_components, alpha)
+        centers, norm = nystroem_basis(Z, n_components, gamma)
+        tr, va = next(grouped_folds(groups, 5))
+        s_tr = nystroem_sums(Z[tr], y[tr], centers, norm, gamma)
+        s_va = nystroem_sums(Z[va], y[va], centers, norm, gamma)
+        kva = rbf_kernel(Z[va], centers, gamma)
+        scores = []
+        for a in NYSTROEM_ALPHAS:
+            w, b0 = nystroem_solve(s_tr, norm, a)
+            scores.append(_rmse(np.clip(kva @ w + b0, 0, 1), y[va]))
+        alpha = NYSTROEM_ALPHAS[int(np.argmin(scores))]
+        total = {k: s_tr[k] + s_va[k] for k in s_tr}
+        weights, b = nystroem_solve(total, norm, alpha)
+        alphas = NYSTROEM_ALPHAS
         report["fit_s"] = time.perf_counter() - t1
         model = Model(spec=ws.spec, kind="kernel", mean=mean, scale=scale, weights=weights,
                       intercept=b, centers=centers, kernel="rbf", gamma=gamma)
@@ -293,8 +339,7 @@ def train_model(ws: WindowSet, kind: str = "svr", max_train: int | None = 6000,
 
 
 def _kernel_predict(Z, centers, weights, b, gamma):
-    sq = (Z * Z).sum(1)[:, None] + (centers * centers).sum(1)[None] - 2 * Z @ centers.T
-    return np.clip(np.exp(-gamma * np.maximum(sq, 0)) @ weights + b, 0, 1)
+    return np.clip(rbf_kernel(Z, centers, gamma) @ weights + b, 0, 1)
 
 
 def _rmse(pred, y):
