@@ -115,7 +115,7 @@ def test_topic_list_shows_published_topics_types_and_rates(playing):
 
 @pytest.mark.timeout(60)
 def test_topic_hz_reports_the_rate(playing):
-    run = slip("topic", "hz", "/biotac/pac", "--duration", "2.5", env=playing.env)
+    run = slip("topic", "hz", "/biotac/pac", "--duration", "3.5", env=playing.env)
     assert run.returncode == 0, run.stderr
     rates = [float(line.split("by stamps ")[1].split()[0]) for line in run.stdout.splitlines()
              if "by stamps" in line]
