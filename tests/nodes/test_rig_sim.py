@@ -11,9 +11,8 @@ import pytest
 from incipient_slip.messages import (
     ActuatorState, BiotacPac, BiotacSlow, GripCommand, ObjectPose, PztCommand, PztState, RobotState,
 )
-from incipient_slip.nodes import bus
-from incipient_slip.nodes.rig_sim import pac_frame_stamps_ns, slow_frame_stamps_ns
-from incipient_slip.nodes.runtime import Node
+from incipient_slip.nodes.rig_sim import RigSim, pac_frame_stamps_ns, slow_frame_stamps_ns
+from incipient_slip.nodes.runtime import Node, run_node
 from incipient_slip.sim.dataset import simulate_series
 from incipient_slip.sim.rig import Rig, load_scene
 
@@ -185,17 +184,16 @@ def test_lockstep_waits_for_the_grip_command_and_applies_its_force(graph):
     ctl.close()
 
 
-def test_scene_without_an_effect_does_not_publish_its_topics(graph):
-    proc = start_rig(graph, scene="mechanics", steps=2)
-    deadline = time.monotonic() + 20
-    while True:
-        rigs = [n for n in bus.scan(graph.dir) if n.name == "rig_sim"]
-        if rigs and "/pzt/command" in rigs[0].subscribes:
-            break
-        assert proc.poll() is None and time.monotonic() < deadline
-        time.sleep(0.02)
-    assert sorted(rigs[0].publishes) == ["/actuator/state", "/heartbeat", "/object/pose", "/robot/state"]
-    stop(proc)
+@pytest.mark.parametrize("scene, topics", [
+    ("mechanics", ["/actuator/state", "/heartbeat", "/object/pose", "/robot/state"]),
+    ("electrodes_only", ["/actuator/state", "/biotac/slow", "/heartbeat", "/object/pose", "/robot/state"]),
+    ("paper", ["/actuator/state", "/biotac/pac", "/biotac/slow", "/heartbeat", "/object/pose",
+               "/pzt/state", "/robot/state"]),
+])
+def test_a_scene_publishes_only_the_topics_of_its_effects(graph, scene, topics):
+    with RigSim(params={"scene": scene}) as node:           # announced, not started
+        assert sorted(node._info.publishes) == topics
+        assert sorted(node._info.subscribes) == ["/grip/command", "/pzt/command"]
 
 
 def test_lockstep_without_a_controller_is_a_fault_naming_the_period(graph):
@@ -222,9 +220,8 @@ def test_realtime_mode_releases_messages_when_their_stamps_are_due(graph):
     ctl.close()
 
 
-def test_unknown_scene_or_material_is_a_one_line_error(graph):
-    bad_scene = start_rig(graph, scene="no_such_scene")
-    bad_material = start_rig(graph, scene="mechanics", material="granite")
-    assert bad_scene.wait(20) == 2 and bad_material.wait(20) == 2
-    assert "scene not found" in bad_scene.stderr.read().decode()
-    assert "'granite' is not in scene 'mechanics'" in bad_material.stderr.read().decode()
+def test_unknown_scene_or_material_is_a_one_line_error(graph, capsys):
+    assert run_node(RigSim, ["scene:=no_such_scene"]) == 2
+    assert "scene not found" in capsys.readouterr().err
+    assert run_node(RigSim, ["scene:=mechanics", "material:=granite"]) == 2
+    assert "'granite' is not in scene 'mechanics'" in capsys.readouterr().err

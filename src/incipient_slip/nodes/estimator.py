@@ -75,7 +75,8 @@ class Estimator(Node):
         self.last_frame_wall = None
         self.stalled = False
         self.pzt_problem = ""
-        self.refused = self.published = 0
+        self.refused = self.published = self.invalid = 0
+        self.latencies_ns: list[int] = []
         if self.param("wall_timeout_s") > 0:
             self.create_timer(min(0.1, self.param("wall_timeout_s") / 4), self.watchdog)
         self.log(f"method {self.method}, model {path}, window {spec.window_s} s, "
@@ -126,6 +127,15 @@ class Estimator(Node):
         self.publish(self.next_end_ns, reason=f"{STALE}: no frame for {timeout} s")
         self.next_end_ns += self.period_ns
 
+    def spin(self) -> int:
+        code = super().spin()
+        lat = sorted(self.latencies_ns) or [0]
+        self.log(f"{self.published} estimates ({self.invalid} invalid), {self.frame_sub.received} "
+                 f"frames, {self.frame_sub.gaps} seq gaps, {self.frame_sub.dropped} malformed, "
+                 f"{self.refused} refused; latency median {lat[len(lat) // 2] / 1e6:.3f} ms, "
+                 f"max {lat[-1] / 1e6:.3f} ms; CPU {time.process_time():.2f} s")
+        return code
+
     # --- output --------------------------------------------------------------------------------
 
     def publish_until(self, limit_ns: float) -> None:
@@ -149,6 +159,8 @@ class Estimator(Node):
             if valid and self.pzt_problem:
                 ratio, valid, reason = float("nan"), False, self.pzt_problem
         latency = time.perf_counter_ns() - t
+        self.latencies_ns.append(latency)
+        self.invalid += not valid
         self.estimate_pub.publish(SlipEstimate(
             stick_ratio=ratio, valid=valid, method=self.method, window_end_ns=end_ns,
             latency_ns=latency, period=end_ns // self.period_ns - 1, reason=reason,
