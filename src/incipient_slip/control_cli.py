@@ -292,7 +292,13 @@ def aggregate(summaries: list[dict]) -> dict:
     y_mean, fn_mean = float(np.nanmean(y)), float(np.nanmean(fn))
     table_score = (control.score(rate, y_mean, fn_mean)
                    if y_mean > 0 and fn_mean > 0 else math.nan)
+    errors = []
+    for s in summaries:       # tracking: |estimate - s_d| after the first 10 steps
+        est = np.array((s.get("traces") or {}).get("stick_ratio_estimate", [])[10:], dtype=float)
+        if np.isfinite(est).any():
+            errors.append(float(np.nanmean(np.abs(est - s.get("s_d", math.nan)))))
     return {"n": len(summaries), "success_rate": rate,
+            "tracking_error": float(np.mean(errors)) if errors else math.nan,
             "y_mean": y_mean, "y_std": float(np.nanstd(y)), "fn_mean": fn_mean,
             "fn_std": float(np.nanstd(fn)), "steps_mean": float(np.mean(steps)),
             "score": table_score, "run_scores": scores.tolist(),
@@ -363,7 +369,7 @@ def format_table_markdown(rows: dict[str, dict]) -> str:
 def format_table_text(rows: dict[str, dict]) -> str:
     """The Table for a terminal: one line per method."""
     out = [f"{'method':<17}{'succ':>6}{'(paper)':>8}{'y mm':>7}{'(paper)':>8}{'F_N kPa':>9}"
-           f"{'(paper)':>8}{'steps':>7}{'(paper)':>8}{'score':>7}{'p':>8}"]
+           f"{'(paper)':>8}{'steps':>7}{'(paper)':>8}{'score':>7}{'p':>9}"]
     for m in TABLE_METHODS:
         if m not in rows:
             continue
@@ -371,7 +377,7 @@ def format_table_text(rows: dict[str, dict]) -> str:
         out.append(f"{METHOD_LABELS[m]:<17}{_fmt(r['success_rate']):>6}{_fmt(p['success']):>8}"
                    f"{_fmt(r['y_mean']):>7}{_fmt(p['y']):>8}{_fmt(r['fn_mean']):>9}{_fmt(p['fn']):>8}"
                    f"{_fmt(r['steps_mean'], '.0f'):>7}{_fmt(p['steps'], 'd'):>8}{_fmt(r['score']):>7}"
-                   f"{'ref' if m == 'injection' else _fmt(r['p_vs_injection'], '.3g'):>8}")
+                   f"{'ref' if m == 'injection' else _fmt(r['p_vs_injection'], '.2g'):>9}")
     return "\n".join(out)
 
 
@@ -497,7 +503,8 @@ def cmd_stabilization(args) -> int:
         print("\nk tuning (injection only, s_d = %.2f, %d runs each):" % (args.s_d, runs))
         for k, r in tune.items():
             print(f"  k = {float(k):<5g} success {_fmt(r['success_rate'])}  steps {_fmt(r['steps_mean'], '.0f')}  "
-                  f"y {_fmt(r['y_mean'])}  F_N {_fmt(r['fn_mean'])}  score {_fmt(r['score'])}")
+                  f"y {_fmt(r['y_mean'])}  F_N {_fmt(r['fn_mean'])}  score {_fmt(r['score'])}  "
+                  f"|s_hat - s_d| {_fmt(r['tracking_error'], '.3f')}")
         cache["tune_k"] = {"s_d": args.s_d, "runs": runs, "rows": tune,
                            "wall_s": round(time.monotonic() - t0, 1)}
         t0 = time.monotonic()

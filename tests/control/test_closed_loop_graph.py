@@ -195,3 +195,53 @@ def test_ur5_backend_is_a_clear_error(graph):
                           capture_output=True, text=True, timeout=30, env=graph.env)
     assert proc.returncode == 2
     assert "UR5" in proc.stderr and "not available yet" in proc.stderr
+
+
+class Watcher(Node):
+    """Records when each period starts (RobotState) and each GripCommand, by monotonic clock."""
+
+    def __init__(self, graph_dir):
+        super().__init__("watcher", graph_dir=graph_dir, heartbeat_s=0)
+        self.period_start: dict[int, float] = {}
+        self.commands: list[tuple[float, GripCommand]] = []
+        self.create_subscription(RobotState, self.on_robot)
+        self.create_subscription(GripCommand, lambda m: self.commands.append((time.monotonic(), m)))
+
+    def on_robot(self, msg):
+        self.period_start.setdefault(msg.stamp_ns // PERIOD_NS, time.monotonic())
+
+    def spin_until(self, predicate, proc, timeout_s=40.0):
+        deadline = time.monotonic() + timeout_s
+        while not predicate():
+            assert proc.poll() is None, f"launch ended early:\n{proc.stderr.read().decode()[-3000:]}"
+            assert time.monotonic() < deadline, "timed out"
+            self.spin_once(0.02)
+
+
+@pytest.mark.timeout(90)
+def test_estimator_killed_mid_run_controller_holds_within_one_period_and_run_ends_as_fault(graph, tmp_path):
+    from incipient_slip.models.estimator_core import default_model_path
+    if not default_model_path("injection").exists():
+        pytest.skip("shipped model models/injection.npz is missing (slip model regen)")
+    summary = tmp_path / "run.json"
+    # a high target keeps F_N low and y small, so the run is still going when the estimator dies
+    proc = graph.spawn(launch_cmd("s_d:=0.8", "k:=0.5", f"summary:={summary}"))
+    watcher = Watcher(graph.dir)
+    watcher.spin_until(lambda: sum(1 for _, c in watcher.commands if not c.hold) >= 5, proc)
+    estimator = [n for n in bus.scan(graph.dir) if n.name == "estimator"]
+    assert estimator, "no estimator announced in the graph"
+    os.kill(estimator[0].pid, signal.SIGKILL)
+    killed_at = time.monotonic()
+    watcher.spin_until(lambda: any(c.hold and t > killed_at for t, c in watcher.commands), proc, 10)
+    t_hold, hold = next((t, c) for t, c in watcher.commands if c.hold and t > killed_at)
+    assert hold.reason == "stale estimate"
+    assert t_hold - watcher.period_start[hold.period] <= 0.5          # within one period
+    last_free = max(c.normal_force_kpa for t, c in watcher.commands if t < killed_at and not c.hold)
+    rc, out, err = finish(proc)
+    result = json.loads(summary.read_text())
+    assert rc == 3 and result["outcome"] == "fault", err[-2000:]
+    assert "consecutive holds" in result["detail"]
+    after = [c for t, c in watcher.commands if t > killed_at]
+    assert all(c.hold for c in after[1:])           # never ramps once the estimates stopped
+    assert all(c.normal_force_kpa <= control.SAFETY_LIMIT_KPA for _, c in watcher.commands)
+    assert last_free > 0

@@ -39,10 +39,11 @@ class Supervisor(Node):
         "safety_limit_kpa": control.SAFETY_LIMIT_KPA,
         "max_steps": control.MAX_STEPS,
         "max_consecutive_holds": 3,
+        "max_missing_periods": 3,         # periods in a row without y or F_N before a fault
         "end_on_failure": True,           # false: run all steps and report (the paper's no action)
         "startup_timeout_s": 60.0,        # wall clock until the first grip command
         "silence_timeout_s": 5.0,         # wall clock between two grip commands
-        "data_wait_s": 0.05,              # longest wait for a period's pose and force after its command
+        "data_wait_s": 1.0,               # longest wait for a period's pose and force after its command
         "quiet": False,                   # true: no one-screen summary (batch runs)
         # recorded in the summary only
         "method": "", "s_d": NAN, "k": NAN, "seed": 0, "material": "", "rig": "sim",
@@ -67,6 +68,7 @@ class Supervisor(Node):
         self.last_command_wall = None
         self.pending = None               # (GripCommand, wall deadline) of the period to judge
         self.pose_stamp_ns = self.robot_stamp_ns = -1
+        self.missing = 0                  # consecutive periods judged without y or F_N
         self.done = False
         self.event_pub = self.create_publisher(RunEvent)
         self.create_subscription(ObjectPose, self.on_pose)
@@ -134,6 +136,12 @@ class Supervisor(Node):
             self.traces[key].append(value)
         self.event_pub.publish(RunEvent(kind="step", step=self.steps, object_travel_mm=self.travel_mm,
                                         normal_force_kpa=self.force_kpa))
+        known = math.isfinite(self.travel_mm) and math.isfinite(self.force_kpa)
+        # y or F_N not heard yet (e.g. this node joined after the rig's first period): not a
+        # verdict until it lasts `max_missing_periods`; the last period is always judged.
+        self.missing = 0 if known else self.missing + 1
+        if not known and self.missing < self.param("max_missing_periods") and self.steps < self.rules.max_steps:
+            return
         verdict = control.judge_step(self.steps, self.travel_mm, self.force_kpa,
                                      self.consecutive_holds, self.rules)
         if verdict.ended:

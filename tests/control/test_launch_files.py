@@ -1,0 +1,56 @@
+"""stabilize.yaml and collect.yaml as the launcher resolves them (one document in, one tree out)."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from incipient_slip.nodes.launcher import LaunchError, find_launch_file, load
+
+
+def nodes(desc):
+    return {n.name: n for n in desc.nodes}
+
+
+def test_stabilize_defaults_are_one_simulated_lockstep_injection_run():
+    desc = load(find_launch_file("stabilize.yaml"))
+    got = nodes(desc)
+    assert set(got) == {"rig_sim", "estimator", "grip_controller", "supervisor"}
+    assert got["rig_sim"].params["scene"] == "paper" and got["rig_sim"].params["lockstep"] is True
+    assert got["grip_controller"].params == {"method": "injection", "s_d": 0.3, "k": 2.0, "robot": "sim"}
+    assert got["supervisor"].required and not got["rig_sim"].required
+    assert got["supervisor"].params["end_on_failure"] is True
+
+
+@pytest.mark.parametrize("method,scene", [("vibrotactile", "no_injection"), ("e19", "electrodes_only"),
+                                          ("e1", "electrodes_only"), ("none", "mechanics")])
+def test_scene_follows_the_method(method, scene):
+    got = nodes(load(find_launch_file("stabilize.yaml"), {"method": method}))
+    assert got["rig_sim"].params["scene"] == scene
+    assert ("estimator" in got) == (method != "none")
+
+
+def test_no_action_runs_all_steps():
+    got = nodes(load(find_launch_file("stabilize.yaml"), {"method": "none"}))
+    assert got["supervisor"].params["end_on_failure"] is False
+
+
+def test_replay_rig_swaps_the_simulator_for_replay():
+    got = nodes(load(find_launch_file("stabilize.yaml"), {"rig": "replay", "recording": "x.mcap"}))
+    assert "rig_sim" not in got and got["replay"].params["path"] == "x.mcap"
+
+
+def test_hardware_rig_fails_clearly_until_the_device_nodes_exist():
+    with pytest.raises(LaunchError, match="biotac_reader"):
+        load(find_launch_file("stabilize.yaml"), {"rig": "hardware"})
+    proc = subprocess.run([sys.executable, "-m", "incipient_slip.nodes.launcher", "stabilize.yaml",
+                           "rig:=hardware"], capture_output=True, text=True, timeout=30)
+    assert proc.returncode != 0 and "no node module incipient_slip.nodes.biotac_reader" in proc.stderr
+
+
+def test_collect_records_the_collection_protocol():
+    got = nodes(load(find_launch_file("collect.yaml"), {"injection": "false", "seed": "3"}))
+    assert got["rig_sim"].params["protocol"] == "collection" and got["rig_sim"].required
+    assert got["rig_sim"].params["scene"] == "no_injection" and got["rig_sim"].params["seed"] == 3
+    assert "recorder" in got
