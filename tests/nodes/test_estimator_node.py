@@ -211,3 +211,20 @@ def test_window_param_that_disagrees_with_the_model_is_a_clear_error(graph, tmp_
     assert run_node(Estimator, [f"model:={tmp_path / 'm.npz'}", "window_s:=0.5"]) == 2
     err = capsys.readouterr().err
     assert "window_s" in err and "1.0" in err and "0.5" in err
+
+
+def test_source_clock_restart_or_jump_resynchronizes_the_periods(estimator):
+    node, _, _ = estimator()
+    stream = pac_stream(2.0)
+    stamp = lambda j: int(pac_frame_stamps_ns(j // 50)[j % 50])      # noqa: E731
+    node.send_pac(stream, range(150))                                  # periods 0..2
+    node.send_pac(stream, range(150), seq_of=lambda j: 150 + j)        # clock restarts at 0
+    node.spin_until(lambda: len(node.estimates) >= 6)
+    assert [e.period for e in node.estimates] == [0, 1, 2, 0, 1, 2]
+    assert [e.valid for e in node.estimates[3:]] == [False, True, True]
+    # a jump of 100 s does not make 200 estimates: it resynchronizes at the new stamps
+    node.send_pac(stream, range(100), seq_of=lambda j: 300 + j, stamp_of=lambda j: stamp(j) + 100 * 10**9)
+    node.spin_until(lambda: len(node.estimates) >= 9)
+    later = node.estimates[6:]
+    assert [e.period for e in later] == [199, 200, 201]
+    assert [e.valid for e in later] == [False, False, True] and later[0].reason == "stale"

@@ -54,6 +54,9 @@ class Estimator(Node):
     def __init__(self, **kwargs):
         super().__init__("estimator", **kwargs)
         self.method = self.param("method")
+        if self.method == "none":
+            raise ParamError(f"node {self.name!r}: method 'none' (no action) has no estimate; "
+                             "leave the estimator out of the launch")
         path = self.param("model") or default_model_path(self.method)
         try:
             self.model = load_model(path, method=self.method, window_s=self.param("window_s") or None)

@@ -111,7 +111,10 @@ class RigSim(Node):
             raise ParamError(f"node {self.name!r}: realtime_factor must be > 0")
         self.steps = self.param("steps")
         self.rig = Rig(scene, material, self.param("seed"))
-        if self.param("injection_db") is not None and scene.has("injection"):
+        if self.param("injection_db") is not None:
+            if not scene.has("injection"):
+                raise ParamError(f"node {self.name!r}: injection_db is set but scene "
+                                 f"{scene.name!r} has no 'injection' effect")
             self.rig.set_injection(True, float(self.param("injection_db")))
         self.forces = (collection_forces_kpa(self.rig.seed, self.steps)
                        if self.protocol == "collection" else None)
