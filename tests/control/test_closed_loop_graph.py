@@ -78,6 +78,7 @@ def start_loop(graph, script, steps, controller_params=()):
     the estimator. Returns (fake estimator node, [processes])."""
     node = FakeEstimator(graph.dir, script)
     ctrl = graph.spawn(["python", "-m", "incipient_slip.nodes.grip_controller", "method:=injection",
+                        "wait_subscribers:=2",
                         *controller_params])
     # the controller is connected before the rig starts: its estimate subscription is counted
     deadline = time.monotonic() + 20

@@ -18,7 +18,8 @@ def test_stabilize_defaults_are_one_simulated_lockstep_injection_run():
     got = nodes(desc)
     assert set(got) == {"rig_sim", "estimator", "grip_controller", "supervisor"}
     assert got["rig_sim"].params["scene"] == "paper" and got["rig_sim"].params["lockstep"] is True
-    assert got["grip_controller"].params == {"method": "injection", "s_d": 0.3, "k": 2.0, "robot": "sim"}
+    assert got["grip_controller"].params == {"method": "injection", "s_d": 0.3, "k": 2.0, "robot": "sim",
+                                             "wait_subscribers": 2}
     assert got["supervisor"].required and not got["rig_sim"].required
     assert got["supervisor"].params["end_on_failure"] is True
 

@@ -35,6 +35,10 @@ class GripController(Node):
         "max_force_kpa": control.SAFETY_LIMIT_KPA,
         "estimate_timeout_s": 0.4,        # < one 500 ms period: hold within one period
         "robot": "sim",
+        # before the first command: wait (once) until this many nodes subscribe to it (the rig
+        # applying it and the supervisor), so period 0's answer is not lost to a slow joiner
+        "wait_subscribers": 1,
+        "wait_timeout_s": 10.0,
     }
 
     def __init__(self, **kwargs):
@@ -57,6 +61,7 @@ class GripController(Node):
         self.waiting = {}                 # period -> wall-clock deadline for its estimate
         self.rejected = 0                 # estimates that could not drive the force
         self.holds = 0
+        self.handshake_done = False
         self.command_pub = self.create_publisher(GripCommand)
         self.estimate_sub = self.create_subscription(SlipEstimate, self.on_estimate)
         self.create_subscription(ActuatorState, self.on_tick)
@@ -97,6 +102,12 @@ class GripController(Node):
                 self.answer(k, control.hold(self.force_kpa, "stale estimate", self.law))
 
     def answer(self, period: int, decision: control.ControlDecision):
+        if not self.handshake_done:
+            self.handshake_done = True
+            n = self.param("wait_subscribers")
+            if n > 0 and not self.command_pub.wait_for_subscribers(n, self.param("wait_timeout_s")):
+                self.warn(f"fewer than {n} subscriber(s) to {self.command_pub.topic} after "
+                          f"{self.param('wait_timeout_s')} s; sending anyway")
         # Periods answered out of order (a late estimate) are never answered twice.
         self.last_answered = max(self.last_answered, period)
         self.waiting = {k: t for k, t in self.waiting.items() if k > self.last_answered}
