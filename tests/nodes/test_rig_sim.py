@@ -196,10 +196,10 @@ def test_a_scene_publishes_only_the_topics_of_its_effects(graph, scene, topics):
         assert sorted(node._info.subscribes) == ["/grip/command", "/pzt/command"]
 
 
-def test_lockstep_without_a_controller_is_a_fault_naming_the_period(graph):
-    proc = start_rig(graph, scene="mechanics", steps=5, wait_subscribers=0, lockstep_timeout_s=0.3)
-    assert proc.wait(20) == 3
-    assert "no GripCommand(period=0)" in proc.stderr.read().decode()
+def test_lockstep_without_a_controller_is_a_fault_naming_the_period(graph, capsys):
+    argv = ["scene:=mechanics", "steps:=5", "wait_subscribers:=0", "lockstep_timeout_s:=0.3"]
+    assert run_node(RigSim, argv) == 3
+    assert "no GripCommand(period=0)" in capsys.readouterr().err
 
 
 def test_realtime_mode_releases_messages_when_their_stamps_are_due(graph):
@@ -216,7 +216,7 @@ def test_realtime_mode_releases_messages_when_their_stamps_are_due(graph):
     sim = np.array([a[1] for a in arrivals]) / 1e9
     assert len(arrivals) == 60 * steps
     assert wall[-1] - wall[0] >= 0.8 * (sim[-1] - sim[0]) / factor       # paced, not a burst
-    assert wall[-1] - wall[0] < 3 * (sim[-1] - sim[0]) / factor + 0.2
+    assert wall[-1] - wall[0] < 3 * (sim[-1] - sim[0]) / factor + 1.0       # generous: loaded CI
     ctl.close()
 
 
