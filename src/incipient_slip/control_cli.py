@@ -392,8 +392,8 @@ def plot_traces(results: dict[str, list[dict]], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     methods = [m for m in TABLE_METHODS if results.get(m)]
-    fig, axes = plt.subplots(2, len(methods), figsize=(2.4 * len(methods), 4.6), sharex=True,
-                             sharey="row", squeeze=False)
+    fig, axes = plt.subplots(3, len(methods), figsize=(2.4 * len(methods), 6.6), sharex=True,
+                             squeeze=False)
     for j, m in enumerate(methods):
         for s in results[m]:
             tr = s.get("traces") or {}
@@ -402,14 +402,21 @@ def plot_traces(results: dict[str, list[dict]], path: Path) -> None:
             color = "tab:green" if s.get("success") else ("tab:red" if s.get("outcome") == "failure" else "tab:gray")
             axes[0, j].plot(tr["step"], tr["travel_mm"], color=color, lw=0.8, alpha=0.7)
             axes[1, j].plot(tr["step"], tr["force_kpa"], color=color, lw=0.8, alpha=0.7)
+            axes[2, j].plot(tr["step"], tr["stick_ratio_estimate"], color=color, lw=0.6, alpha=0.6)
         axes[0, j].axhline(control.FAILURE_TRAVEL_MM, color="k", ls="--", lw=0.7)
         axes[1, j].axhline(control.SAFETY_LIMIT_KPA, color="k", ls="--", lw=0.7)
+        axes[2, j].axhline(results[m][0].get("s_d", control.DEFAULT_TARGET_STICK_RATIO), color="k", ls="--", lw=0.7)
+        if m != "none":
+            axes[0, j].set_ylim(-0.1, 2.5)
+        axes[1, j].set_ylim(0.8, 6.3)
+        axes[2, j].set_ylim(-0.05, 1.05)
         axes[0, j].set_title(METHOD_LABELS[m], fontsize=9)
-        axes[1, j].set_xlabel("step")
+        axes[2, j].set_xlabel("step")
     axes[0, 0].set_ylabel("y [mm]")
     axes[1, 0].set_ylabel("F_N [kPa]")
+    axes[2, 0].set_ylabel("estimated s")
     fig.suptitle(f"Stabilization traces ({SIM_LABEL}; green success, red failure, gray fault; "
-                 f"dashed: failure limits)", fontsize=9)
+                 f"dashed: failure limits, s_d)", fontsize=9)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
