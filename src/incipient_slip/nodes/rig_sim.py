@@ -308,11 +308,13 @@ class RigSim(Node):
             items += self.slow_messages(out, k)
         if self.pose_pub is not None and out.mocap_y_mm is not None:
             stamps = np.round(out.mocap_t_s * 1e9).astype(np.int64).tolist()
-            for stamp, y in zip(stamps, out.mocap_y_mm.tolist()):
+            positions = np.zeros((len(stamps), 3))
+            positions[:, 1] = out.mocap_y_mm             # travel along the rail is y
+            for stamp, position in zip(stamps, positions):
                 stamp = max(stamp, 1)
                 items.append((stamp, self.pose_pub,
-                              ObjectPose(position_mm=np.array([0.0, y, 0.0]),
-                                         orientation_xyzw=_IDENTITY_XYZW, stamp_ns=stamp)))
+                              ObjectPose(position_mm=position, orientation_xyzw=_IDENTITY_XYZW,
+                                         stamp_ns=stamp)))
         start = max(k * PERIOD_NS, 1)
         items.append((start, self.robot_pub,
                       RobotState(normal_force_kpa=out.normal_force_kpa, stamp_ns=start)))
