@@ -187,3 +187,19 @@ def test_node_process_exits_0_promptly_on_signal(graph, sig):
     assert proc.wait(timeout=5) == 0
     assert time.monotonic() - t0 < 1.5
     assert bus.scan(graph.dir) == []
+
+
+def test_frames_of_a_publisher_that_just_exited_are_still_delivered(graph):
+    """ZeroMQ drops unread frames on disconnect: the runtime must read them before it lets go."""
+    with Node("listener") as listener:
+        got = []
+        listener.create_subscription(M.BiotacPac, got.append)
+        own = len(listener._connected)  # a node also connects to its own endpoint
+        talker = graph.spawn(["python", str(NODES / "talker.py"), "rate_hz:=100000",
+                              "count:=2000", "wait_for:=1"])
+        # Connect to the talker, then read nothing until it is gone: all 2000 frames are queued
+        # in our pipe when its announcement disappears.
+        spin_until([listener], lambda: len(listener._connected) > own, timeout_s=20)
+        assert talker.wait(timeout=30) == 0
+        spin_until([listener], lambda: len(got) == 2000, timeout_s=10)
+        assert [m.seq for m in got] == list(range(2000))

@@ -45,6 +45,7 @@ POLL_S = 0.1              # longest a loop blocks before it looks at the stop fl
 LINGER_MS = 500           # longest close() waits to flush queued messages
 HWM = 100_000             # per-peer queue, messages; P_AC at 100 frames/s is tiny beside it
 HEARTBEAT_S = 1.0
+DISCONNECT_GRACE_S = 2.0  # how long a withdrawn publisher stays connected so its last frames are read
 _LOG_EVERY_S = 1.0        # rate limit of repeated warnings (malformed frames, callback errors)
 
 
@@ -231,6 +232,7 @@ class Node:
         self._info = bus.NodeInfo(self.name, os.getpid(), endpoint, started_ns=time.time_ns())
         self._discovery = bus.Discovery(self._dir)
         self._connected: set[str] = set()
+        self._retiring: dict[str, float] = {}   # endpoint -> monotonic time to disconnect
         self._next_scan = 0.0
         self._announce()
         self._hb_pub = None
@@ -390,12 +392,20 @@ class Node:
     def _discover(self) -> None:
         self._next_scan = time.monotonic() + POLL_S
         added, removed = self._discovery.changes()
+        now = time.monotonic()
         for endpoint in added:
+            self._retiring.pop(endpoint, None)
             if endpoint not in self._connected:
                 self._sub.connect(endpoint)
                 self._connected.add(endpoint)
+        # A publisher that withdrew may still have frames in our pipe: ZeroMQ discards them on
+        # disconnect, so disconnect only after a grace period in which the loop reads them.
         for endpoint in removed:
             if endpoint in self._connected:
+                self._retiring.setdefault(endpoint, now + DISCONNECT_GRACE_S)
+        for endpoint, due in list(self._retiring.items()):
+            if due <= now:
+                del self._retiring[endpoint]
                 try:
                     self._sub.disconnect(endpoint)
                 except zmq.ZMQError:
