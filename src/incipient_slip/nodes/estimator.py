@@ -25,6 +25,7 @@ in `refused`; nothing here blocks.
 from __future__ import annotations
 
 import time
+from collections import deque
 
 from incipient_slip.messages import (
     PAC_SAMPLES_PER_FRAME, BiotacPac, BiotacSlow, PztState, SlipEstimate,
@@ -79,7 +80,7 @@ class Estimator(Node):
         self.stalled = False
         self.pzt_problem = ""
         self.refused = self.published = self.invalid = 0
-        self.latencies_ns: list[int] = []
+        self.latencies_ns: deque = deque(maxlen=10_000)      # for the shutdown summary
         if self.param("wall_timeout_s") > 0:
             self.create_timer(min(0.1, self.param("wall_timeout_s") / 4), self.watchdog)
         self.log(f"method {self.method}, model {path}, window {spec.window_s} s, "
