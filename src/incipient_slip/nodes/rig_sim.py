@@ -29,7 +29,8 @@ recorder) lists the topics its nodes read, or the rig waits the whole timeout fo
 `collection` the command is only the go-ahead, its force is not used). No command within
 `lockstep_timeout_s` (wall clock; 0 waits forever) is a fault: the node exits 3 naming the
 period. `lockstep: false`: real time x `realtime_factor`, each message released when its stamp
-is due, the latest command applies to the next period.
+is due; a period is simulated when it starts, with the latest command (so the answer to period
+k, which comes after its tick, applies from period k+2, as on a real robot).
 
 After `steps` periods it publishes nothing more and idles until SIGTERM (the supervisor ends a
 run), or exits 0 when `exit_when_done`.
