@@ -78,3 +78,15 @@ def test_cli_help_explains_the_commands(capsys):
         _run(["dataset", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "materials[i % n]" in text and "independent of --workers" in text
+
+
+def test_dataset_series_equals_a_plain_step_period_loop():
+    from incipient_slip.sim import Rig
+    from incipient_slip.sim.dataset import simulate_series
+    scene = load_scene("paper")
+    data = simulate_series(scene, "tpu", 1234, steps=6)
+    rig = Rig(scene, "tpu", 1234)
+    outs = [rig.step_period(float(f)) for f in collection_forces_kpa(1234, 6)]
+    assert np.array_equal(data["pac_counts"], np.concatenate([o.pac_counts for o in outs]))
+    assert np.array_equal(data["electrode_counts"], np.concatenate([o.electrode_counts for o in outs]))
+    assert np.array_equal(data["object_y_mm"], [o.object_y_mm for o in outs])
