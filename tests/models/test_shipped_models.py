@@ -42,6 +42,7 @@ def test_all_shipped_models_share_one_held_out_series_set():
     assert len(sets) == 1
 
 
+@pytest.mark.slow
 def test_regen_is_deterministic(tmp_path):
     pytest.importorskip("incipient_slip.sim.dataset")
     from incipient_slip.models.cli import regen_models

@@ -281,6 +281,49 @@ def write_markdown(study, figs: dict, path: Path, fig_rel: str, labelq: dict, co
               "", "So a large part of every method's error under the paper's rule is the label rule itself:",
               "after the first gross slip the rig sticks and slips again while the label stays 0. This is",
               "why the shipped default models (`slip model regen`) learn the incipient-slip range only.", ""]
+    lines += STATIC_SECTIONS
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines) + "\n")
     return path
+
+
+STATIC_SECTIONS = """
+## Commands
+
+* `slip reproduce estimation [--quick]` - this page: simulates both data sets (500 series each,
+  or reuses `runs/data/`), trains the six methods under both label policies, evaluates, writes
+  `docs/estimation.md` and `docs/figures/est_*.png`. `--quick` (10 short series) writes to
+  `runs/estimation-quick/` only.
+* `slip train --method M --data DIR [--kind svr|nystroem|linear] [--after-slip zero|drop]` -
+  one model on a data set written by `slip dataset`, scored on the held-out series.
+* `slip evaluate --data DIR [--data-no-injection DIR] --model A.npz --model B.npz ...` -
+  per-series RMSE, top-10 % RMSE, per material, Holm-corrected paired t-tests vs the first model.
+* `slip model regen` - regenerates the shipped `models/METHOD.npz` (all six, T = 1.0 s) from a
+  simulated data set (100 series per scene, seed 7), deterministically.
+* `slip reproduce accuracy-vs-time [--quick]` - docs/accuracy-vs-time.md.
+
+## Definitions
+
+* **Label**: pseudo-stick ratio s = 1 - F_T / F_T^slip per 500 ms sample, F_T^slip = the
+  largest F_T up to the gross-slip onset; onset = first period in which the object (mocap)
+  travels >= 0.02 mm between the mean of the period's first 25 ms and of its last 50 ms (the
+  second half of the paper's 1 s window, after the step's deformation jump). Paper's rule:
+  s = 0 for every later window. Incipient-range policy: windows after the onset are left out.
+* **Held-out series**: per material, the ceil(10 %) series indices with the smallest
+  sha256(seed, index); the same for every method and for both data sets.
+* **RMSE** per held-out series; **top-10 % RMSE** per series = RMSE over that series' ceil(10 %)
+  windows with the largest |estimate - label|; reported as mean ± std over the series.
+* **Significance**: paired two-sided t-test on the per-series values, injection vs each other
+  method, Holm correction over the five comparisons, ** p < 0.01, * p < 0.05.
+
+## Model files and the estimator core
+
+A model file is a compressed `.npz` of float64 arrays (`mean`, `scale`, `centers`, `weights`,
+`intercept`) plus `header`, a UTF-8 JSON (method, feature spec and its hash, regressor,
+kernel and hyper-parameters, training data hash, held-out series, library versions); it is read
+with `allow_pickle=False`. Exact SVR and Nystroem + ridge are both stored as one kernel
+expansion f(z) = sum_j w_j k(z, c_j) + b on standardized features, clipped to [0, 1].
+`incipient_slip.models.estimator_core` loads it (`load_model(path, stream=..., rate_hz=...)`
+refuses a spec that does not fit the stream) and `StreamingEstimator` turns P_AC or electrode
+frames into `estimate(window_end_ns) -> (stick_ratio, valid, reason)`.
+""".strip("\n").split("\n")
