@@ -139,3 +139,22 @@ def test_wrong_dtype_names_topic_and_field():
     with pytest.raises(M.MessageError) as info:
         M.decode(msgpack.packb(obj), M.BiotacPac, "/biotac/pac")
     assert (info.value.topic, info.value.field) == ("/biotac/pac", "pac_counts")
+
+
+def test_constructing_a_message_copies_arrays_so_the_callers_buffer_may_change():
+    buffer = np.arange(22, dtype=np.int16)
+    msg = M.BiotacPac(pac_counts=buffer)
+    buffer[:] = -1
+    assert msg.pac_counts.tolist() == list(range(22))
+    assert buffer.flags.writeable and not msg.pac_counts.flags.writeable
+
+
+def test_constructor_fast_path_and_general_path_agree_on_what_is_invalid():
+    with pytest.raises(M.MessageError, match="pac_counts"):
+        M.BiotacPac(pac_counts=np.zeros(21, dtype=np.int16))
+    with pytest.raises(M.MessageError, match="position_mm"):
+        M.ObjectPose(position_mm=np.array([0.0, np.inf, 0.0]), orientation_xyzw=np.zeros(4))
+    with pytest.raises(M.MessageError, match="seq"):
+        M.BiotacPac(pac_counts=np.zeros(22, dtype=np.int16), seq=-1)
+    # a list or another dtype is converted by the general path, not refused
+    assert M.BiotacPac(pac_counts=[1] * 22).pac_counts.dtype == np.dtype("<i2")

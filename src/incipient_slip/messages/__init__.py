@@ -76,11 +76,21 @@ class Message:
 
     def __post_init__(self):
         # Validated and normalised on construction, so an invalid message is never encoded and
-        # equality never depends on the caller's dtype or memory layout.
-        for name, spec, meta in _plan(type(self)):
+        # equality never depends on the caller's dtype or memory layout. Arrays are copied and
+        # made read-only, so the caller's buffer may change afterwards. A checker generated per
+        # class handles the usual case; anything unusual takes the general path, which names
+        # what is wrong.
+        cls = type(self)
+        try:
+            fast = _FAST_INIT[cls]
+        except KeyError:
+            fast = _FAST_INIT[cls] = _compile_fast(cls, construct=True)
+        if fast(self.__dict__):
+            return
+        for name, spec, meta in _plan(cls):
             value = getattr(self, name)
             if spec is not None:
-                arr = np.ascontiguousarray(np.asarray(value).astype(spec.dtype, copy=False))
+                arr = np.array(np.asarray(value), dtype=spec.dtype, order="C", copy=True)
                 arr = _check_array(self.TOPIC, name, spec, arr)
                 arr.setflags(write=False)
                 object.__setattr__(self, name, arr)
@@ -428,59 +438,83 @@ def _header(body: dict, topic: str) -> type[Message]:
     return cls
 
 
-_FAST: dict[type, Any] = {}
+_FAST: dict[type, Any] = {}        # decoders of well-formed bodies
+_FAST_INIT: dict[type, Any] = {}   # checkers of well-formed constructor arguments
 
 
-def _compile_fast(cls) -> Any:
-    """A decoder for well-formed bodies of `cls`: returns the message, or None for anything
-    unusual (the full validator then runs and names what is wrong). Generated once per class
-    from the field specs, because per-field generic checks dominated the receive path."""
+def _scalar_lines(v: str, meta: dict, i: int, env: dict) -> list[str]:
+    """Generated checks of one scalar variable `v`; each line returns None when it fails."""
+    kind = meta["kind"]
+    if kind is bool:
+        lines = [f"    if type({v}) is not bool: return None"]
+    elif kind is str:
+        lines = [f"    if type({v}) is not str: return None"]
+    elif kind is int:
+        lines = [f"    if type({v}) is not int or not ({-(1 << 63)} <= {v} < {1 << 64}): return None"]
+    else:
+        lines = [f"    if type({v}) is not float:",
+                 f"        if type({v}) is not int: return None",
+                 f"        {v} = float({v})"]
+        if meta["finite"]:
+            lines.append(f"    if not isfinite({v}): return None")
+    if meta["low"] is not None:
+        lines.append(f"    if {v} < {meta['low']!r}: return None")
+    if meta["high"] is not None:
+        lines.append(f"    if {v} > {meta['high']!r}: return None")
+    if meta["choices"] is not None:
+        env[f"choices{i}"] = frozenset(meta["choices"])
+        lines.append(f"    if {v} not in choices{i}: return None")
+    return lines
+
+
+def _compile_fast(cls, construct: bool = False) -> Any:
+    """A checker generated once per class from its field specs, because generic per-field
+    checks dominated both the receive path and message construction.
+
+    construct=False: decodes a well-formed msgpack body to the message, or returns None.
+    construct=True: checks and normalises a new message's __dict__ in place (arrays copied,
+    read-only), returning True, or None when anything is unusual.
+    Either way None sends the caller to the general validator, which names what is wrong.
+    """
     plan = _plan(cls)
-    src = ["def fast(body):", f"    if len(body) != {len(plan) + 2}: return None", "    g = body.get"]
+    if construct:
+        src = ["def fast(body):", "    g = body.get"]
+    else:
+        src = ["def fast(body):", f"    if len(body) != {len(plan) + 2}: return None", "    g = body.get"]
     env: dict[str, Any] = {"isfinite": math.isfinite, "frombuffer": np.frombuffer,
                            "new": object.__new__, "cls": cls, "MISSING": object(),
-                           "allfinite": lambda a: bool(np.isfinite(a).all())}
+                           "ndarray": np.ndarray, "allfinite": lambda a: bool(np.isfinite(a).all())}
     names = []
     for i, (name, spec, meta) in enumerate(plan):
         v = f"v{i}"
         names.append((name, v))
         src.append(f"    {v} = g({name!r}, MISSING)")
-        if spec is not None:
-            if any(n is None for n in spec.shape):
-                return None     # free-length arrays: the general path only
-            shape = list(spec.shape)
+        if spec is None:
+            src += _scalar_lines(v, meta, i, env)
+            continue
+        if any(n is None for n in spec.shape):
+            return None     # free-length arrays: the general path only
+        shape = tuple(spec.shape)
+        env[f"dtype{i}"] = np.dtype(spec.dtype)
+        if construct:
+            src += [f"    if type({v}) is not ndarray or {v}.dtype != dtype{i} or {v}.shape != {shape!r}:"
+                    " return None",
+                    f"    {v} = {v}.copy()",
+                    f"    {v}.flags.writeable = False"]
+        else:
             nbytes = math.prod(shape) * np.dtype(spec.dtype).itemsize
             src += [f"    if type({v}) is not dict or len({v}) != 3: return None",
                     f"    d = {v}.get('data')",
                     f"    if type(d) is not bytes or len(d) != {nbytes} or {v}.get('dtype') != {spec.dtype!r}"
-                    f" or {v}.get('shape') != {shape!r}: return None",
-                    f"    {v} = frombuffer(d, {spec.dtype!r}).reshape({tuple(shape)!r})"]
-            if np.dtype(spec.dtype).kind == "f":
-                src.append(f"    if not allfinite({v}): return None")
-            continue
-        kind = meta["kind"]
-        if kind is bool:
-            src.append(f"    if type({v}) is not bool: return None")
-        elif kind is str:
-            src.append(f"    if type({v}) is not str: return None")
-        elif kind is int:
-            src.append(f"    if type({v}) is not int or not ({-(1 << 63)} <= {v} < {1 << 64}): return None")
-        else:
-            src += [f"    if type({v}) is not float:",
-                    f"        if type({v}) is not int: return None",
-                    f"        {v} = float({v})"]
-            if meta["finite"]:
-                src.append(f"    if not isfinite({v}): return None")
-        if meta["low"] is not None:
-            src.append(f"    if {v} < {meta['low']!r}: return None")
-        if meta["high"] is not None:
-            src.append(f"    if {v} > {meta['high']!r}: return None")
-        if meta["choices"] is not None:
-            env[f"choices{i}"] = frozenset(meta["choices"])
-            src.append(f"    if {v} not in choices{i}: return None")
-    src += ["    m = new(cls)",
-            "    m.__dict__.update(" + ", ".join(f"{n}={v}" for n, v in names) + ")",
-            "    return m"]
+                    f" or {v}.get('shape') != {list(shape)!r}: return None",
+                    f"    {v} = frombuffer(d, {spec.dtype!r}).reshape({shape!r})"]
+        if np.dtype(spec.dtype).kind == "f":
+            src.append(f"    if not allfinite({v}): return None")
+    values = ", ".join(f"{n}={v}" for n, v in names)
+    if construct:
+        src += [f"    body.update({values})", "    return True"]
+    else:
+        src += ["    m = new(cls)", f"    m.__dict__.update({values})", "    return m"]
     exec("\n".join(src), env)  # noqa: S102 - source built above from our own field specs
     return env["fast"]
 
