@@ -238,7 +238,7 @@ def report_markdown(scene: Scene, res: dict) -> str:
         f"| travel y at gross-slip onset (label rule; y before the onset period) | 1.5 +/- 0.4 mm | {tb[0]:.2f} +/- {tb[1]:.2f} mm |",
         f"| travel y at the end of the onset period (after the slide) | - | {ta[0]:.2f} +/- {ta[1]:.2f} mm |",
         f"| travel y before the true first slide | - | {tt[0]:.2f} +/- {tt[1]:.2f} mm |",
-        f"| Pearson R, 200 Hz band vs F_T at fixed F_N (median, min..max over 5 materials x 3 F_N) | 0.97 | {r[0]:.3f} ({r[1]:.3f}..{r[2]:.3f}) |",
+        f"| Pearson R of the \"200 Hz\" band (150-250 Hz) amplitude vs F_T at fixed F_N; negative = falls as F_T rises, as in the paper (median, min..max over 5 materials x 3 F_N) | 0.97 | {r[0]:.3f} ({r[1]:.3f}..{r[2]:.3f}) |",
         f"| final y with no control (F_N = 2.94 kPa, run ends when y > 1.5 mm) | 2.48 mm | {ycn:.2f} mm "
         f"({', '.join(f'{m} {v[0]:.2f}' for m, v in nc.items())}) |",
         f"| y after the first gross slide at 2.94 kPa (run not stopped) | (2.48 mm, other reading) | "
