@@ -228,7 +228,7 @@ def cmd_reproduce(args) -> int:
 
 def _reproduce(args) -> int:
     from .paths_compat import repo_root, runs_dir
-    from .pipeline import ensure_dataset, run_study, save_results
+    from .pipeline import ensure_dataset, load_all_windows, run_study, save_results
     from .report import fig_sorted, label_quality, write_figures, write_markdown
     t0 = time.perf_counter()
     quick = args.quick
@@ -241,8 +241,10 @@ def _reproduce(args) -> int:
             for sc in ("paper", "no_injection")}
     max_train = args.max_train or (1000 if quick else 8000)
     grid_max = 600 if quick else 2000
-    study = run_study(dirs, quick=quick, max_train=max_train, grid_max=grid_max)
-    incipient = run_study(dirs, quick=quick, max_train=max_train, grid_max=grid_max, after_slip="drop")
+    windows = load_all_windows(dirs)
+    study = run_study(dirs, quick=quick, max_train=max_train, grid_max=grid_max, windows=windows)
+    incipient = run_study(dirs, quick=quick, max_train=max_train, grid_max=grid_max, after_slip="drop",
+                          windows=windows)
     save_results(study, out / "results.json")
     save_results(incipient, out / "results_incipient.json")
     fig_dir = (docs / "figures") if docs else out / "figures"

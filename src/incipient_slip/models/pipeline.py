@@ -78,18 +78,29 @@ class StudyResult:
                 "timings": self.timings}
 
 
+def load_all_windows(data_dirs: dict, methods=METHODS, window_s: float = 1.0, progress: bool = True) -> dict:
+    """Return {method: WindowSet} under the paper's rule (all windows; filter post_slip for the
+    incipient range)."""
+    return {m: load_windows(data_dirs[SCENE_OF_METHOD[m]], feature_spec(m, window_s=window_s),
+                            progress=progress)
+            for m in tqdm(methods, desc="features", disable=not progress, leave=False)}
+
+
 def run_study(data_dirs: dict, methods=METHODS, kind: str = "svr", quick: bool = False,
               max_train: int | None = 6000, grid_max: int = 2000, window_s: float = 1.0,
-              after_slip: str = "zero", progress: bool = True) -> StudyResult:
+              after_slip: str = "zero", progress: bool = True, windows: dict | None = None) -> StudyResult:
     """Train and evaluate each method on its data set with one shared held-out series set.
 
     data_dirs: {"paper": dir with injection, "no_injection": dir without}.
+    windows: preloaded `load_all_windows` result (paper's rule), reused across label policies.
     """
     t0 = time.perf_counter()
-    windows = {}
-    for m in tqdm(methods, desc="features", disable=not progress, leave=False):
-        windows[m] = load_windows(data_dirs[SCENE_OF_METHOD[m]], feature_spec(m, window_s=window_s),
-                                  progress=progress, after_slip=after_slip)
+    methods = list(methods)
+    if windows is None:
+        windows = load_all_windows(data_dirs, methods, window_s, progress)
+    windows = {m: windows[m] for m in methods}
+    if after_slip == "drop":
+        windows = {m: w.subset(~w.post_slip) for m, w in windows.items()}
     # one held-out set for all methods: from the series materials of the first data set,
     # checked against the others (same seed -> same material per series index)
     ref = windows[methods[0]].series_materials()

@@ -97,8 +97,8 @@ def run_sweeps(data_dir: Path, quick: bool = False, progress: bool = True) -> di
     bins = [5.0, 10.0, 50.0] if quick else [2.0, 5.0, 10.0, 25.0, 50.0]
     bands = [(10.0, 1100.0), (100.0, 400.0)] if quick else [(10.0, 1100.0), (10.0, 500.0), (100.0, 400.0),
                                                            (400.0, 1100.0)]
-    max_train = 1500 if quick else 6000
-    grid_max = 600 if quick else 2000
+    max_train = 1500 if quick else 4000
+    grid_max = 600 if quick else 1500
     longest = max(windows)
     ws = load_windows(data_dir, base, min_window_s=longest, progress=progress)
     test_series = held_out_series(ws.series_materials())
@@ -149,7 +149,7 @@ def scale_study(train: WindowSet, test: WindowSet, params: dict, budget_s: float
     train / test / params: the injection windows and RBF-SVR parameters of `run_sweeps`.
     """
     test_series = np.unique(test.series)
-    ns = [500, 1000, 2000] if quick else [1000, 2000, 4000, 8000, 16000, 32000]
+    ns = [500, 1000, 2000] if quick else [1000, 2000, 4000, 8000, 16000, 24000]
     exact = []
     for n in tqdm(ns, desc="exact SVR vs n", disable=not progress):
         if n > len(train.y):

@@ -48,6 +48,7 @@ class WindowSet:
     load_ratio_stick: np.ndarray
     tangential_force_n: np.ndarray
     normal_force_kpa: np.ndarray
+    post_slip: np.ndarray       # window ends after the gross-slip onset period
     spec: FeatureSpec
     data_hash: str = ""
     skipped_series: list = field(default_factory=list)   # no gross slip detected
@@ -55,7 +56,8 @@ class WindowSet:
     def subset(self, mask: np.ndarray) -> "WindowSet":
         keep = {k: getattr(self, k)[mask] for k in ("X", "y", "series", "material", "period",
                                                   "stick_area_ratio", "load_ratio_stick",
-                                                  "tangential_force_n", "normal_force_kpa")}
+                                                  "tangential_force_n", "normal_force_kpa",
+                                                  "post_slip")}
         return WindowSet(**keep, spec=self.spec, data_hash=self.data_hash,
                          skipped_series=self.skipped_series)
 
@@ -104,7 +106,8 @@ def load_windows(data_dir: str | Path, spec: FeatureSpec, min_window_s: float | 
         X = series_features(s, spec, s.period_end_s[k])
         parts.append((X, lab.pseudo_stick_ratio[k], np.full(len(k), s.index),
                       np.full(len(k), s.material, dtype=object), k, s.stick_area_ratio[k],
-                      s.load_ratio_stick[k], s.tangential_force_n[k], s.normal_force_kpa[k]))
+                      s.load_ratio_stick[k], s.tangential_force_n[k], s.normal_force_kpa[k],
+                      k > lab.gross_slip_index))
     if not parts:
         raise ds.DatasetError(f"{data_dir}: no labelled windows (no series with gross slip?)")
     cols = [np.concatenate(c) for c in zip(*parts)]
