@@ -90,3 +90,12 @@ def test_dataset_series_equals_a_plain_step_period_loop():
     assert np.array_equal(data["pac_counts"], np.concatenate([o.pac_counts for o in outs]))
     assert np.array_equal(data["electrode_counts"], np.concatenate([o.electrode_counts for o in outs]))
     assert np.array_equal(data["object_y_mm"], [o.object_y_mm for o in outs])
+
+
+def test_calibrate_writes_report_and_labelled_figures(tmp_path):
+    out = tmp_path / "docs" / "simulator.md"
+    assert _run(["sim", "calibrate", "--scene", "paper", "--series", "1", "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "| quantity | paper | simulated rig |" in text and "1.5 +/- 0.4 mm" in text
+    figs = sorted((tmp_path / "docs" / "figures").glob("sim_*.png"))
+    assert len(figs) == 4 and all(f"Simulated rig, not a measurement: `{f.name}`" in text for f in figs)
