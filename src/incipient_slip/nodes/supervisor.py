@@ -4,12 +4,13 @@ Watches `/object/pose` (travel y), `/robot/state` (applied F_N) and `/grip/comma
 closes each period: the controller answers period k exactly once, right after the rig's tick for
 k. (It does not read `/actuator/state` itself, so that the grip controller is that topic's only
 reader and rig_sim's subscriber handshake cannot start period 0 before the controller listens.)
-After each period it applies `control.judge_step`: y > 1.5 mm or F_N at the 6.0 kPa safety limit fails, repeated holds are
-a fault (the estimate stream is gone), 450 steps succeed. A silent graph (no command within a
-wall-clock timeout) is also a fault. It publishes `RunEvent`s, writes
-the JSON run summary (success, final y, final F_N, steps, traces), prints a one-screen summary
-and exits 0 (success), 1 (failure) or 3 (fault); it is `required` in the launch file, so the
-launch ends with its code.
+A period is judged once its command and the rig's pose and force for it have arrived (the
+command comes from another publisher and may overtake them), by `control.judge_step`:
+y > 1.5 mm or F_N at the 6.0 kPa safety limit fails, repeated holds are a fault (the estimate
+stream is gone), 450 steps succeed. A silent graph (no command within a wall-clock timeout) is
+also a fault. It publishes `RunEvent`s, writes the JSON run summary (success, final y, final
+F_N, steps, traces), prints a one-screen summary and exits 0 (success), 1 (failure) or
+3 (fault); it is `required` in the launch file, so the launch ends with its code.
 """
 from __future__ import annotations
 
@@ -181,8 +182,10 @@ class Supervisor(Node):
         keys = ("method", "s_d", "k", "seed", "material", "rig")
         return {
             "outcome": verdict.kind, "success": verdict.kind == "success", "detail": verdict.detail,
-            "steps": self.steps, "final_travel_mm": self.travel_mm, "final_force_kpa": self.force_kpa,
-            "holds": self.holds, "pzt_on": self.pzt_on, "wall_s": round(time.monotonic() - self.started_wall, 3),
+            "steps": self.steps, "max_steps": self.rules.max_steps,
+            "final_travel_mm": self.travel_mm, "final_force_kpa": self.force_kpa,
+            "holds": self.holds, "pzt_on": self.pzt_on,
+            "wall_s": round(time.monotonic() - self.started_wall, 3),
             **{key: self.param(key) for key in keys},
             "traces": self.traces,
         }
@@ -196,7 +199,7 @@ def format_summary(summary: dict, path: str = "") -> str:
         f"stabilization run ({summary.get('rig', 'sim')} rig): {summary['outcome'].upper()} - {summary['detail']}",
         f"  method {summary['method']}  s_d {summary['s_d']}  k {summary['k']}  "
         f"material {summary['material'] or '(scene default)'}  seed {summary['seed']}",
-        f"  steps  {summary['steps']} / {control.MAX_STEPS}",
+        f"  steps  {summary['steps']} / {summary.get('max_steps', control.MAX_STEPS)}",
         f"  y      {summary['final_travel_mm']:.3f} mm (failure > {control.FAILURE_TRAVEL_MM} mm; "
         f"max {max(trace_y, default=NAN):.3f})",
         f"  F_N    {summary['final_force_kpa']:.3f} kPa (safety limit {control.SAFETY_LIMIT_KPA} kPa; "
