@@ -456,6 +456,10 @@ class Node:
     def _wait_subscribers(self, frame: bytes, n: int, timeout_s: float) -> bool:
         deadline = time.monotonic() + timeout_s
         while True:
+            # Keep discovering while we wait: our own subscriptions must connect to the nodes
+            # that are joining too, or their first messages to us would be lost.
+            if time.monotonic() >= self._next_scan:
+                self._discover()
             self._drain_xpub()
             if self._subscribers_of(frame) >= n:
                 return True
