@@ -195,13 +195,34 @@ def _result_rows(study) -> list[str]:
     out = []
     for r in study.table():
         m = r["method"]
-        pr = "-" if r["p_rmse"] is None else f"{r['p_rmse']:.2g} {study.tests_rmse[m]['stars']}"
-        pt = "-" if r["p_top10"] is None else f"{r['p_top10']:.2g} {study.tests_top10[m]['stars']}"
+        pr = "-" if r["p_rmse"] is None else _p_cell(study.tests_rmse[m])
+        pt = "-" if r["p_top10"] is None else _p_cell(study.tests_top10[m])
         params = r["params"] or {}
         ptxt = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in params.items())
         out.append(f"| {NAMES[m]} | {r['rmse_mean']:.3f} ± {r['rmse_std']:.3f} | {pr} | "
                    f"{r['top10_mean']:.3f} ± {r['top10_std']:.3f} | {pt} | {ptxt} | {PAPER_FINDINGS[m]} |")
     return out
+
+
+def verdict(tests: dict, what: str) -> str:
+    """Return one sentence: where injection is significantly better / worse / not different."""
+    better = [NAMES[m] for m, t in tests.items() if t["p_holm"] < 0.05 and t["mean_diff"] < 0]
+    worse = [NAMES[m] for m, t in tests.items() if t["p_holm"] < 0.05 and t["mean_diff"] > 0]
+    same = [NAMES[m] for m, t in tests.items() if t["p_holm"] >= 0.05]
+    parts = []
+    if better:
+        parts.append(f"lower than {', '.join(better)}")
+    if worse:
+        parts.append(f"higher than {', '.join(worse)}")
+    if same:
+        parts.append(f"not significantly different from {', '.join(same)}")
+    return f"Injection's {what} is " + "; ".join(parts) + " (Holm-corrected p < 0.05)."
+
+
+def _p_cell(test: dict) -> str:
+    """Return 'p stars (lower|higher)': the method's error relative to injection."""
+    side = "lower" if test["mean_diff"] > 0 else "higher"
+    return f"{test['p_holm']:.2g} {test['stars']} ({side})".replace("  ", " ")
 
 
 TABLE_HEAD = ["| method | RMSE (mean ± std) | p vs injection | top-10 % RMSE | p vs injection | kernel, params | paper's finding |",
@@ -232,7 +253,8 @@ def write_markdown(study, figs: dict, path: Path, fig_rel: str, labelq: dict, co
         "* RMSE is per test series; **top-10 % RMSE** of a series is the RMSE over its ceil(10 %)",
         "  windows with the largest absolute error. Both are averaged over test series (± std).",
         "  Paired two-sided t-tests (per series) of injection vs each method, Holm-corrected over the",
-        "  five comparisons: ** p < 0.01, * p < 0.05.",
+        "  five comparisons: ** p < 0.01, * p < 0.05; (lower) / (higher) = that method's error",
+        "  relative to injection.",
         "",
         "## Results (simulated rig) and the paper side by side",
         "",
@@ -240,10 +262,12 @@ def write_markdown(study, figs: dict, path: Path, fig_rel: str, labelq: dict, co
         "",
         *TABLE_HEAD, *_result_rows(study),
     ]
+    lines += ["", verdict(study.tests_rmse, "RMSE") + " " + verdict(study.tests_top10, "top-10 % RMSE")]
     if incipient is not None:
         lines += ["", "Incipient-slip range only (windows up to and including the gross-slip onset; the",
                   "shipped default models are trained this way, see below):", "",
-                  *TABLE_HEAD, *_result_rows(incipient)]
+                  *TABLE_HEAD, *_result_rows(incipient), "",
+                  verdict(incipient.tests_rmse, "RMSE") + " " + verdict(incipient.tests_top10, "top-10 % RMSE")]
     mats = sorted(rows[0]["by_material"])
     lines += ["", "Mean RMSE per material (simulated rig):", "",
               "| method | " + " | ".join(mats) + " |", "|---|" + "---|" * len(mats)]
@@ -268,7 +292,7 @@ def write_markdown(study, figs: dict, path: Path, fig_rel: str, labelq: dict, co
                   f"![200 Hz band vs F_T]({fig_rel}/{Path(figs['band']).name})", "",
                   f"*Simulated rig.* 200 Hz band amplitude vs F_T before gross slip: R pooled over all F_N = "
                   f"{figs['band_r_pooled']:.2f}, mean R within one F_N level = {figs['band_r_within']:.2f}; the paper",
-                  "reports R = 0.97 (optical F_T, sawtooth injection, presumably at fixed F_N).", ""]
+                  "reports |R| = 0.97 with the spectrum falling as F_T rises (optical F_T, sawtooth injection).", ""]
     lines += ["## The pseudo label against the simulator's truth", "",
               "The simulator knows the true stick-area ratio (c/a)^2 and its own load ratio",
               "1 - Q/(mu_s F_N); the paper cannot measure either. On the injection data set:", "",
