@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .protocols import COLLECTION_FORCES_KPA, run_collection, run_constant
+from .protocols import COLLECTION_FORCES_KPA, run_closed_loop, run_collection, run_constant
 from .rig import Rig, series_seed
 from .scene import Scene, validate_effects
 
@@ -53,6 +53,7 @@ def collection_stats(scene: Scene, n_per_material: int, seed: int, steps: int = 
             k = lab.gross_slip_index
             k_true = int(np.argmax(gross)) if gross.any() else -1
             rows.append({"material": mat, "k_rule": k, "k_true": k_true,
+                         "u_at_rule": float(outs[k].actuator_mm) if k >= 0 else np.nan,
                          "y_before_rule": float(ytrue[k - 1]) if k > 0 else np.nan,
                          "y_at_rule": float(ytrue[k]) if k >= 0 else np.nan,
                          "y_before_true": float(ytrue[k_true - 1]) if k_true > 0 else np.nan,
@@ -90,44 +91,78 @@ def band_correlation(scene: Scene, forces_kpa=(2.3, 3.5, 4.7), seed: int = 1, st
 
 
 def no_control(scene: Scene, fn_kpa: float = 2.94, seeds: int = 10, seed: int = 2, steps: int = 450) -> dict:
-    """Return y at the step where y first exceeds 1.5 mm (the paper's failure rule) at constant F_N."""
+    """Return, per material, (mean final y, mean first step with y > 1.5 mm or nan, fraction of runs with
+    a gross slide) at constant F_N for all `steps` periods, as the paper's no-action runs."""
     mech = subset(scene, MECHANICS)
     res = {}
     for mi, mat in enumerate(scene.materials):
-        ys, ks, yslide = [], [], []
+        ys, ks, slid = [], [], []
         for j in range(seeds):
             rig = Rig(mech, mat, series_seed(seed, 100 * mi + j))
-            y_fail = None
+            k_fail, any_slide = np.nan, False
             for o in run_constant(rig, fn_kpa, steps):
-                if y_fail is None and o.object_y_mm > 1.5:
-                    y_fail, k_fail = o.object_y_mm, o.period_index
-                if o.gross_slip:
-                    yslide.append(o.object_y_mm)
-                    break
-            ys.append(y_fail if y_fail is not None else o.object_y_mm)
-            ks.append(k_fail if y_fail is not None else o.period_index)
-        res[mat] = (float(np.mean(ys)), float(np.mean(ks)), float(np.mean(yslide)) if yslide else float("nan"))
+                if np.isnan(k_fail) and o.object_y_mm > 1.5:
+                    k_fail = o.period_index
+                any_slide |= o.gross_slip
+            ys.append(o.object_y_mm)
+            ks.append(k_fail)
+            slid.append(any_slide)
+        res[mat] = (float(np.mean(ys)), float(np.nanmean(ks)) if np.isfinite(ks).any() else float("nan"),
+                    float(np.mean(slid)))
+    return res
+
+
+def oracle_hold(scene: Scene, seeds: int = 3, seed: int = 4, steps: int = 450) -> dict:
+    """Physical-plausibility check: the paper's grip law fed the simulator's TRUE pseudo-stick ratio
+    (load_ratio_stick) must be able to hold the object (y <= 1.5 mm for all steps).
+
+    Uses `incipient_slip.control` unchanged (s_d = 0.3, k = 2 kPa, F_N in 1.1..6.0 kPa, 0.5 kPa per
+    period, start at 2.9 kPa). Returns per material the mean final y, final F_N, max y, final s,
+    the fraction of runs that held, and the mean first step with y > 1.5 mm (nan if none)."""
+    from incipient_slip.control import DEFAULT_INITIAL_FORCE_KPA, FAILURE_TRAVEL_MM, ControlParams, next_force
+
+    mech = subset(scene, MECHANICS)
+    cp = ControlParams()
+    res = {}
+    for mi, mat in enumerate(scene.materials):
+        rows = []
+        for j in range(seeds):
+            force = [DEFAULT_INITIAL_FORCE_KPA]
+
+            def controller(last, force=force):
+                if last is not None:
+                    force[0] = next_force(force[0], last.load_ratio_stick, cp).normal_force_kpa
+                return force[0]
+
+            rig = Rig(mech, mat, series_seed(seed, 100 * mi + j))
+            ys, k_fail = [], np.nan
+            for o in run_closed_loop(rig, controller, steps):
+                ys.append(o.object_y_mm)
+                if np.isnan(k_fail) and (o.object_y_mm > FAILURE_TRAVEL_MM or o.normal_force_kpa >= cp.safety_limit_kpa):
+                    k_fail = o.period_index
+            rows.append((o.object_y_mm, o.normal_force_kpa, max(ys), o.load_ratio_stick, float(np.isnan(k_fail)), k_fail))
+        a = np.array(rows)
+        res[mat] = {"y": float(a[:, 0].mean()), "fn": float(a[:, 1].mean()), "y_max": float(a[:, 2].max()),
+                    "s": float(a[:, 3].mean()), "held": float(a[:, 4].mean()),
+                    "k_fail": float(np.nanmean(a[:, 5])) if np.isfinite(a[:, 5]).any() else float("nan")}
     return res
 
 
 def slip_coverage(scene: Scene, seed: int = 3, steps: int = 450) -> dict:
-    """Return, per material, the largest actuator position (mm) at first gross slip over all F_N
-    (nan when some F_N never slips within the travel)."""
+    """Return, per material, the largest constant F_N (kPa, collection grid) at which gross slip starts
+    within the travel (nan when none does). The collection protocol's own coverage (every series
+    reaches gross slip) is in `collection_stats`."""
     mech = subset(scene, ("contact", "stick_slip"))
     res = {}
     for mi, mat in enumerate(scene.materials):
-        worst = 0.0
+        best = float("nan")
         for fi, fn in enumerate(COLLECTION_FORCES_KPA):
             rig = Rig(mech, mat, series_seed(seed, 100 * mi + fi))
-            u = np.nan
-            for o in run_constant(rig, float(fn), steps):
-                if o.gross_slip:
-                    u = o.actuator_mm
-                    break
-            worst = max(worst, u) if np.isfinite(u) else np.nan
-            if not np.isfinite(worst):
+            if any(o.gross_slip for o in run_constant(rig, float(fn), steps)):
+                best = float(fn)
+            else:
                 break
-        res[mat] = worst
+        res[mat] = best
     return res
 
 
@@ -198,6 +233,7 @@ def run_calibration(scene: Scene, n_per_material: int = 20, seed: int = 0, fig_d
     corr = band_correlation(scene, seed=seed + 1) if scene.has("injection") else {}
     nc = no_control(scene, seed=seed + 2)
     cov = slip_coverage(scene, seed=seed + 3)
+    orc = oracle_hold(scene, seed=seed + 4)
     rows = stats["rows"]
     yb = np.array([r["y_before_rule"] for r in rows])
     ya = np.array([r["y_at_rule"] for r in rows])
@@ -211,7 +247,10 @@ def run_calibration(scene: Scene, n_per_material: int = 20, seed: int = 0, fig_d
         "travel_before_true_mm": (np.nanmean(yt), np.nanstd(yt)),
         "onset_period": (float(np.mean(kr[kr >= 0])) if (kr >= 0).any() else np.nan, float(np.mean(kr < 0))),
         "r_band200": (float(np.nanmedian(rs)), float(np.nanmin(rs)), float(np.nanmax(rs))),
-        "no_control": nc, "coverage": cov,
+        "no_control": nc, "coverage": cov, "oracle": orc,
+        "onset_by_material": {m: float(np.nanmean([r["y_before_rule"] for r in rows if r["material"] == m]))
+                              for m in scene.materials},
+        "latest_onset_actuator_mm": float(np.nanmax([r["u_at_rule"] for r in rows])) if (kr >= 0).any() else np.nan,
         "label_hist": np.histogram(lab, bins=10, range=(0, 1))[0] if lab.size else np.zeros(10, int),
         "n_series": len(rows),
         "figures": figures(stats, corr, fig_dir) if fig_dir is not None and corr else [],
@@ -228,24 +267,33 @@ def report_markdown(scene: Scene, res: dict) -> str:
     nc = res["no_control"]
     ycn = np.mean([v[0] for v in nc.values()])
     cov = res["coverage"]
-    worst = max(cov.values()) if all(np.isfinite(v) for v in cov.values()) else float("nan")
+    orc = res["oracle"]
     hist = res["label_hist"]
+    per = res["onset_by_material"]
+    no_onset = res["onset_period"][1]
+    held = all(v["held"] == 1.0 for v in orc.values())
     lines = [
         f"Scene `{scene.name}`, {res['n_series']} collection series (all materials); simulated rig, not measurements.",
         "",
         "| quantity | paper | simulated rig |",
         "|---|---|---|",
-        f"| travel y at gross-slip onset (label rule; y before the onset period) | 1.5 +/- 0.4 mm | {tb[0]:.2f} +/- {tb[1]:.2f} mm |",
+        f"| travel y at gross-slip onset (label rule; y before the onset period) | 1.5 +/- 0.4 mm | {tb[0]:.2f} +/- {tb[1]:.2f} mm "
+        f"({', '.join(f'{m} {v:.2f}' for m, v in per.items())}) |",
         f"| travel y at the end of the onset period (after the slide) | - | {ta[0]:.2f} +/- {ta[1]:.2f} mm |",
         f"| travel y before the true first slide | - | {tt[0]:.2f} +/- {tt[1]:.2f} mm |",
         f"| Pearson R of the \"200 Hz\" band (150-250 Hz) amplitude vs F_T at fixed F_N; negative = falls as F_T rises, as in the paper (median, min..max over 5 materials x 3 F_N) | 0.97 | {r[0]:.3f} ({r[1]:.3f}..{r[2]:.3f}) |",
-        f"| final y with no control (F_N = 2.94 kPa, run ends when y > 1.5 mm) | 2.48 mm | {ycn:.2f} mm "
+        f"| final y with no action (F_N = 2.94 kPa, all 450 steps, mean of 10 runs) | 2.48 mm | {ycn:.2f} mm "
         f"({', '.join(f'{m} {v[0]:.2f}' for m, v in nc.items())}) |",
-        f"| y after the first gross slide at 2.94 kPa (run not stopped) | (2.48 mm, other reading) | "
-        f"{np.nanmean([v[2] for v in nc.values()]):.2f} mm |",
-        f"| gross slip within 23 mm at every F_N 1.1..5.9 kPa, every material | yes | "
-        f"{'yes' if np.isfinite(worst) and worst <= 23.0 else 'NO'} (latest onset at actuator {worst:.1f} mm) |",
-        f"| mean onset period (label rule) / series without onset | - | {res['onset_period'][0]:.0f} / {res['onset_period'][1]:.0%} |",
+        f"| no action: runs with a gross slide / mean first step with y > 1.5 mm | - | "
+        f"{', '.join(f'{m} {v[2]:.0%}/{v[1]:.0f}' for m, v in nc.items())} |",
+        f"| gross slip within 23 mm in the collection protocol, every material (series without onset; latest onset) | yes | "
+        f"{'yes' if no_onset == 0 else 'NO'} ({no_onset:.0%}; actuator {res['latest_onset_actuator_mm']:.1f} mm) |",
+        f"| largest constant F_N that slides grossly within 23 mm | - | "
+        f"{', '.join(f'{m} {v:.1f} kPa' for m, v in cov.items())} |",
+        f"| ORACLE: paper's law (s_d 0.3, k 2 kPa, 1.1..6.0 kPa, 0.5 kPa/period) on the true load_ratio_stick holds y <= 1.5 mm for 450 steps | possible (injection: y 1.38 mm, F_N 4.50 kPa) | "
+        f"{'yes' if held else 'NO'}: final y / F_N / held " + ", ".join(
+            f"{m} {v['y']:.2f} mm / {v['fn']:.2f} kPa / {v['held']:.0%}" for m, v in orc.items()) + " |",
+        f"| mean onset period (label rule) / series without onset | - | {res['onset_period'][0]:.0f} / {no_onset:.0%} |",
         f"| label distribution s before onset (10 bins 0..1) | not given | {' '.join(str(int(h)) for h in hist)} |",
     ]
     return "\n".join(lines)
