@@ -8,7 +8,8 @@ from hypothesis import strategies as st
 from scipy import signal
 
 from incipient_slip.sim import Rig, SimulationError, load_scene
-from incipient_slip.sim.partial_slip import displacement_mm, load_ratio_stick, stick_area_ratio
+from incipient_slip.sim import contact
+from incipient_slip.sim.partial_slip import displacement_mm, load_ratio_stick, max_displacement_mm, stick_area_ratio
 from incipient_slip.sim.scene import scene_from_dict
 from incipient_slip.sim.sos import sosfilt_state
 from incipient_slip.sim.stick_slip import solve_stick
@@ -49,6 +50,42 @@ def test_q_exactly_at_the_limit_sticks_with_zero_ratio():
     assert direction == 0 and y == pytest.approx(dmax)
     assert load_ratio_stick(k * (u - y), mu_fn) == pytest.approx(0.0, abs=1e-12)
     assert solve_stick(0.0, u + 1e-9, k, mu_fn, dmax)[0] == 1   # a hair more: gross slip
+
+
+def _delta_max(rig, fn_n):
+    c = rig.p["contact"]
+    a = contact.contact_radius_mm(fn_n, rig.radius_mm, rig.e_star)
+    g = contact.tangential_shear_modulus_mpa(rig.g_star_t_ref, fn_n, c["tangential_ref_force_n"],
+                                             c["tangential_stiffening_exponent"], c["min_contact_force_n"])
+    return max_displacement_mm(rig.mu_s * fn_n, g, a), g
+
+
+@FAST
+@given(fn_n=st.floats(1e-4, 20.0), material=st.sampled_from(["pla", "tpu"]))
+def test_delta_max_is_finite_positive_and_independent_of_fn_at_beta_two_thirds(fn_n, material):
+    rig = Rig(load_scene("mechanics"), material, 0)
+    c = rig.p["contact"]
+    assert c["tangential_stiffening_exponent"] == pytest.approx(2 / 3)
+    fn_n = max(fn_n, c["min_contact_force_n"])          # the rig has no contact below the threshold
+    d, g = _delta_max(rig, fn_n)
+    d_ref, _ = _delta_max(rig, c["tangential_ref_force_n"])
+    assert math.isfinite(d) and d > 0 and math.isfinite(g) and g > 0
+    assert d == pytest.approx(d_ref, rel=1e-9)
+
+
+@pytest.mark.parametrize("fn_n", [0.0, 1e-300, 1e-12])
+def test_tangential_modulus_is_clamped_at_the_no_contact_threshold(fn_n):
+    g = contact.tangential_shear_modulus_mpa(0.01, fn_n, 1.0, 2 / 3, 1e-4)
+    assert g == pytest.approx(0.01 * 1e-4 ** (2 / 3)) and g > 0
+
+
+@pytest.mark.parametrize("fn_kpa", [2.51e-4, 1e-3, 1e-2])   # 2.51e-4 kPa x 0.4 N/kPa: just above 1e-4 N
+def test_contact_just_above_the_threshold_is_finite_and_bounded(fn_kpa):
+    rig = Rig(load_scene("mechanics"), "pla", 0)
+    for _ in range(20):
+        out = rig.step_period(fn_kpa)
+        assert math.isfinite(out.object_y_mm) and 0.0 <= out.stick_area_ratio <= 1.0
+        assert np.all(np.isfinite(out.mocap_y_mm)) and abs(out.object_y_mm - out.actuator_mm) < 3.0
 
 
 def _scene(effects, **overrides):

@@ -23,3 +23,14 @@ def effective_moduli_mpa(p: dict, object_modulus_mpa: float) -> tuple[float, flo
 def contact_radius_mm(normal_force_n: float, radius_mm: float, e_star_mpa: float) -> float:
     """Return the Hertz contact radius a = (3 F R / 4 E*)^(1/3) in mm (0 without contact)."""
     return float(np.cbrt(3.0 * max(normal_force_n, 0.0) * radius_mm / (4.0 * e_star_mpa)))
+
+
+def tangential_shear_modulus_mpa(g_star_ref_mpa: float, normal_force_n: float, ref_force_n: float,
+                                 exponent: float, min_force_n: float) -> float:
+    """Return the effective tangential shear modulus G*_t = G*_ref (F_N / F_ref)^beta in MPa.
+
+    Used only in the tangential (Mindlin) compliance; the Hertz normal contact keeps E*. F_N is
+    clamped at the no-contact threshold min_force_n so G*_t stays positive and finite as F_N -> 0.
+    With beta = 2/3, delta_max = 3 mu F_N / (16 G*_t a) does not depend on F_N (a ~ F_N^(1/3))."""
+    f = max(float(normal_force_n), float(min_force_n))
+    return float(g_star_ref_mpa * (f / ref_force_n) ** exponent)

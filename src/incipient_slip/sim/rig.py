@@ -91,6 +91,9 @@ class Rig:
         c = p["contact"]
         self.radius_mm = contact.effective_radius_mm(c)
         self.e_star, self.g_star = contact.effective_moduli_mpa(c, mat["object_modulus_mpa"])
+        # tangential compliance: G*_t at F_ref from the tangential skin modulus, stiffening with F_N
+        _, self.g_star_t_ref = contact.effective_moduli_mpa(
+            {**c, "skin_modulus_mpa": c["tangential_skin_modulus_mpa"]}, mat["object_modulus_mpa"])
         # soft objects add a little damping to the modes (assumption: proportional to skin/object compliance ratio)
         self.material_damping = 0.01 * min(1.0, c["skin_modulus_mpa"] / mat["object_modulus_mpa"])
         ss = p["stick_slip"]
@@ -127,14 +130,17 @@ class Rig:
         if not math.isfinite(fn_kpa) or fn_kpa < 0.0:
             raise ValueError(f"step {k_step}: normal_force_kpa must be finite and >= 0, got {normal_force_kpa}")
         p = self.p
-        fn_n = fn_kpa * p["contact"]["newton_per_kpa"]
+        c = p["contact"]
+        fn_n = fn_kpa * c["newton_per_kpa"]
         in_contact = fn_n >= p["contact"]["min_contact_force_n"]
         a_mm = contact.contact_radius_mm(fn_n, self.radius_mm, self.e_star) if in_contact else 0.0
         out_fn = fn_n if in_contact else 0.0
         jit = 1.0 + p["stick_slip"]["mu_period_jitter"] * self.rng["friction"].standard_normal()
         mu_s, mu_k = self.mu_s * jit, self.mu_k * jit
         mu_fn = mu_s * out_fn
-        dmax = partial_slip.max_displacement_mm(mu_fn, self.g_star, a_mm)
+        g_t = contact.tangential_shear_modulus_mpa(self.g_star_t_ref, out_fn, c["tangential_ref_force_n"],
+                                                   c["tangential_stiffening_exponent"], c["min_contact_force_n"])
+        dmax = partial_slip.max_displacement_mm(mu_fn, g_t, a_mm)
 
         sar, s_ratio, q, gross, slide_s, slide_t0 = 1.0, 1.0, 0.0, False, 0.0, 0.0
         if self.scene.has("stick_slip"):
