@@ -76,3 +76,19 @@ def test_reproduce_estimation_quick_runs_on_the_simulated_rig(tmp_path):
     md = (tmp_path / "estimation.md").read_text()
     assert md.count("*Simulated rig.*") >= 4
     assert len(list((tmp_path / "figures").glob("est_*.png"))) >= 5
+
+
+def test_cached_data_set_from_other_physics_is_regenerated(tmp_path):
+    """A data set cached before the simulator changed must not be reused."""
+    import json
+    from incipient_slip.models.pipeline import ensure_dataset
+    out = tmp_path / "mech"
+    ensure_dataset("mechanics", 2, 0, out, workers=1, steps=4, progress=False)
+    meta = json.loads((out / "meta.json").read_text())
+    first = (out / "series_00000.npz").stat().st_mtime_ns
+    assert ensure_dataset("mechanics", 2, 0, out, workers=1, steps=4, progress=False) == out
+    assert (out / "series_00000.npz").stat().st_mtime_ns == first   # reused while physics is the same
+    meta["physics_fingerprint"] = "older-physics"
+    (out / "meta.json").write_text(json.dumps(meta))
+    ensure_dataset("mechanics", 2, 0, out, workers=1, steps=4, progress=False)
+    assert json.loads((out / "meta.json").read_text())["physics_fingerprint"] != "older-physics"

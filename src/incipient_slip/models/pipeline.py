@@ -26,17 +26,23 @@ SCENE_OF_METHOD = {m: ("no_injection" if m == "vibrotactile" else "paper") for m
 def ensure_dataset(scene: str, n_series: int, seed: int, out_dir: Path, workers: int = 2,
                    steps: int = 450, progress: bool = True) -> Path:
     """Return a data set directory for (scene, n_series, seed), simulating it if needed."""
+    from ..sim.dataset import physics_fingerprint, write_dataset
+    from ..sim.scene import load_scene
     out_dir = Path(out_dir)
+    scene_obj = load_scene(scene)
     try:
         meta = ds.read_meta(out_dir)
+        # Reuse only data made by the same physics: a recalibrated simulator must not be
+        # evaluated on the old one's data.
         if (meta.get("scene") == scene and meta.get("seed") == seed and meta.get("n_series") == n_series
-                and meta.get("steps") == steps and len(ds.series_paths(out_dir)) == n_series):
+                and meta.get("steps") == steps and len(ds.series_paths(out_dir)) == n_series
+                and meta.get("physics_fingerprint") == physics_fingerprint(scene_obj)):
             return out_dir
     except ds.DatasetError:
         pass
-    from ..sim.dataset import write_dataset
-    from ..sim.scene import load_scene
-    write_dataset(load_scene(scene), n_series, seed, out_dir, workers=workers, steps=steps,
+    for stale in out_dir.glob("series_*.npz"):   # from other physics or an interrupted run
+        stale.unlink()
+    write_dataset(scene_obj, n_series, seed, out_dir, workers=workers, steps=steps,
                   progress=progress)
     return out_dir
 

@@ -7,6 +7,7 @@ result does not depend on the number of workers.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from concurrent.futures import ProcessPoolExecutor
@@ -60,6 +61,18 @@ def _worker(args) -> str:
     return str(path)
 
 
+def physics_fingerprint(scene: Scene) -> str:
+    """A hash of everything that decides the simulated data: the scene, its parameter values and
+    the sim code. A cached data set whose fingerprint differs was made by other physics."""
+    h = hashlib.sha256()
+    h.update(scene.yaml_text.encode())
+    h.update(json.dumps(scene.params, sort_keys=True, default=str).encode())
+    for source in sorted(Path(__file__).parent.glob("*.py")):
+        h.update(source.name.encode())
+        h.update(source.read_bytes())
+    return h.hexdigest()[:16]
+
+
 def write_dataset(scene: Scene, n_series: int, seed: int, out_dir: str | Path, *, materials=None,
                   workers: int | None = None, steps: int = 450, progress: bool = True) -> Path:
     """Write a data set directory (meta.json + series_NNNNN.npz) and return its path."""
@@ -78,6 +91,7 @@ def write_dataset(scene: Scene, n_series: int, seed: int, out_dir: str | Path, *
         "period_s": p["timing"]["period_s"], "steps": int(steps),
         "pac_pa_per_count": p["adc"]["pac_pa_per_count"], "pdc_pa_per_count": p["adc"]["pdc_pa_per_count"],
         "created_by": "incipient_slip.sim.dataset.write_dataset",
+        "physics_fingerprint": physics_fingerprint(scene),
         "series_material_rule": "materials[i % len(materials)]",
         "series_seed_rule": "SeedSequence(seed, spawn_key=(i,)) -> int63",
     }
