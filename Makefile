@@ -12,8 +12,14 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
+# One closed-loop run on the simulated rig (rig_sim, estimator, grip_controller, supervisor as
+# separate processes, lock-step). Exit 1 is the run ending on the paper's failure condition, a
+# result of the experiment, reported as such; a crash or fault (any other code) fails the demo.
 demo: $(STAMP)
-	$(BIN)/launch demo.yaml
+	@$(BIN)/launch stabilize.yaml; code=$$?; \
+	if [ $$code -eq 1 ]; then \
+	  echo "demo: the graph ran; the run itself ended on the paper's failure condition (see docs/stabilization.md)"; \
+	  exit 0; fi; exit $$code
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
