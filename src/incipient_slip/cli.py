@@ -20,7 +20,7 @@ COMMAND_MODULES = (
 )
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(modules: tuple[str, ...] = COMMAND_MODULES) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="slip",
         description="Incipient slip detection by vibration injection: tools for the node graph, "
@@ -30,15 +30,16 @@ def build_parser() -> argparse.ArgumentParser:
     reproduce = subparsers.add_parser(
         "reproduce", help="run one of the paper's experiments end to end and write docs/"
     ).add_subparsers(dest="experiment", metavar="EXPERIMENT", required=True)
-    for module_name in COMMAND_MODULES:
+    for module_name in modules:
         importlib.import_module(module_name).register(subparsers, reproduce)
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, modules: tuple[str, ...] = COMMAND_MODULES) -> int:
+    """Runs `slip` (or, with `modules`, a subset of its commands); returns the exit code."""
     # `slip ... | head` should end quietly when the reader goes away, like any Unix tool.
     signal.signal(signal.SIGPIPE, signal.SIG_DFL)
-    args = build_parser().parse_args(argv)
+    args = build_parser(modules).parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:

@@ -311,14 +311,8 @@ def register(subparsers, reproduce) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """`python -m incipient_slip.nodes.tools topic|bag ...`: these commands without the rest of `slip`."""
-    parser = argparse.ArgumentParser(prog="slip", description="topic and bag tools")
-    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    register(subparsers, None)
-    args = parser.parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except KeyboardInterrupt:
-        return 130
+    from incipient_slip.cli import main as slip_main
+    return slip_main(argv, modules=("incipient_slip.nodes.tools",))
 
 
 if __name__ == "__main__":
