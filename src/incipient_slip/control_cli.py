@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from incipient_slip import control
-from incipient_slip.paths import repo_root
+from incipient_slip.paths import repo_root, runs_dir
 
 # the paper's column order
 TABLE_METHODS = ("none", "vibrotactile", "e1", "e4", "e10", "e19", "injection")
@@ -488,7 +488,7 @@ def cmd_stabilization(args) -> int:
     """Run the Table (and the sweep / k tuning when asked), print it, write docs."""
     runs = args.runs if args.runs is not None else (2 if args.quick else 10)
     steps = args.steps
-    work = Path(args.out or (repo_root() / "runs" / ("stabilization-quick" if args.quick else "stabilization")))
+    work = Path(args.out or (runs_dir() / ("stabilization-quick" if args.quick else "stabilization")))
     work.mkdir(parents=True, exist_ok=True)
     docs = Path(args.docs) if args.docs else (None if args.quick else repo_root() / "docs")
     cache_path = (docs / "figures" / "stab_results.json") if docs else work / "stab_results.json"

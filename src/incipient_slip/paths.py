@@ -25,3 +25,8 @@ def scenes_dir() -> Path:
 def model_dir() -> Path:
     """Return the directory of shipped model files."""
     return repo_root() / "models"
+
+
+def runs_dir() -> Path:
+    """Return runs/ at the repository root (git-ignored outputs of runs, training and studies)."""
+    return repo_root() / "runs"

@@ -121,7 +121,7 @@ def _train(args) -> int:
     from .evaluation import series_scores
     from .features import feature_spec
     from .modelfile import save_model
-    from .paths_compat import runs_dir
+    from ..paths import runs_dir
     from .training import held_out_series, load_windows, split_train_test, train_model
     spec = feature_spec(args.method, window_s=args.window_s)
     ws = load_windows(args.data, spec, after_slip=args.after_slip)
@@ -211,7 +211,7 @@ def regen_models(series: int, seed: int, work: Path, out: Path, methods=METHODS,
 
 
 def _regen(args) -> int:
-    from .paths_compat import model_dir, runs_dir
+    from ..paths import model_dir, runs_dir
     t0 = time.perf_counter()
     written = regen_models(args.series, args.seed, args.work or runs_dir() / "regen",
                            args.out or model_dir(), args.methods)
@@ -227,7 +227,7 @@ def cmd_reproduce(args) -> int:
 
 
 def _reproduce(args) -> int:
-    from .paths_compat import repo_root, runs_dir
+    from ..paths import repo_root, runs_dir
     from .pipeline import ensure_dataset, load_all_windows, run_study, save_results
     from .report import fig_sorted, label_quality, write_figures, write_markdown
     t0 = time.perf_counter()

@@ -290,7 +290,7 @@ def recommendation(result: dict, scale: dict) -> str:
 
 
 def run_tradeoff_cli(args) -> int:
-    from .paths_compat import repo_root, runs_dir
+    from ..paths import repo_root, runs_dir
     from .pipeline import ensure_dataset
     t0 = time.perf_counter()
     quick = args.quick
