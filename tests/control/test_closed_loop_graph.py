@@ -112,7 +112,9 @@ def test_launch_without_estimator_runs_to_the_end_and_exits_with_the_supervisor_
 @pytest.mark.timeout(60)
 def test_launch_returns_failure_code_when_the_object_slips(graph, tmp_path):
     summary = tmp_path / "run.json"
-    proc = graph.spawn(launch_cmd("method:=none", "end_on_failure:=true", f"summary:={summary}"))
+    # nylon (the lowest friction) slides under the constant no-action grip (docs/simulator.md)
+    proc = graph.spawn(launch_cmd("method:=none", "material:=nylon", "end_on_failure:=true",
+                                  f"summary:={summary}"))
     rc, out, err = finish(proc)
     result = json.loads(summary.read_text())
     assert rc == 1 and result["outcome"] == "failure"
