@@ -2,7 +2,7 @@
 # containers find each other through the shared graph directory (ipc sockets on a volume).
 FROM python:3.11-slim
 WORKDIR /app
-COPY pyproject.toml README.md ./
+COPY pyproject.toml README.md LICENSE ./
 COPY src ./src
 COPY launch ./launch
 COPY scenes ./scenes
