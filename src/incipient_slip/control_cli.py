@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import hashlib
 import json
 import math
 import os
@@ -71,11 +72,15 @@ class RunSpec:
     tag: str = "table"
     summary_path: Path = Path()
     log_path: Path = Path()
+    model: str = ""          # estimator model file ("" = the shipped models/<method>.npz)
 
     def launch_args(self) -> dict[str, str]:
-        return {"method": self.method, "seed": str(self.seed), "material": self.material,
+        args = {"method": self.method, "seed": str(self.seed), "material": self.material,
                 "s_d": repr(float(self.s_d)), "k": repr(float(self.k)), "steps": str(self.steps),
                 "summary": str(self.summary_path), "quiet": "true"}
+        if self.model:
+            args["model"] = self.model
+        return args
 
     @property
     def name(self) -> str:
@@ -453,12 +458,13 @@ def plot_sweep(sweep: dict, path: Path) -> None:
 
 # --- the experiment --------------------------------------------------------------------------
 
-def make_specs(methods, runs: int, s_d: float, k: float, steps: int, work: Path, tag: str) -> list[RunSpec]:
+def make_specs(methods, runs: int, s_d: float, k: float, steps: int, work: Path, tag: str,
+               model: str = "") -> list[RunSpec]:
     """Run i of every method uses seed i and material i mod 5: the methods see the same rigs."""
     specs = []
     for m in methods:
         for i in range(runs):
-            spec = RunSpec(m, i, MATERIALS[i % len(MATERIALS)], s_d, k, steps, tag)
+            spec = RunSpec(m, i, MATERIALS[i % len(MATERIALS)], s_d, k, steps, tag, model=model)
             spec.summary_path = work / f"{spec.name}.json"
             spec.log_path = work / f"{spec.name}.log"
             specs.append(spec)
@@ -488,6 +494,8 @@ def cmd_stabilization(args) -> int:
     """Run the Table (and the sweep / k tuning when asked), print it, write docs."""
     runs = args.runs if args.runs is not None else (2 if args.quick else 10)
     steps = args.steps
+    if args.model is not None:
+        return _run_extension_model(args, runs, steps)
     work = Path(args.out or (runs_dir() / ("stabilization-quick" if args.quick else "stabilization")))
     work.mkdir(parents=True, exist_ok=True)
     docs = Path(args.docs) if args.docs else (None if args.quick else repo_root() / "docs")
@@ -500,7 +508,7 @@ def cmd_stabilization(args) -> int:
             return 2
         if "sweep" in cache:
             plot_sweep(cache["sweep"]["rows"], docs / "figures" / "stab_sweep.png")
-        (docs / "stabilization.md").write_text(render_doc(cache))
+        (docs / "stabilization.md").write_text(render_doc(cache, docs))
         print(f"wrote {docs / 'stabilization.md'} from {cache_path}")
         return 0
     runner = GraphRunner(jobs=args.jobs, start=args.start)
@@ -570,10 +578,112 @@ def cmd_stabilization(args) -> int:
     cache_path.parent.mkdir(parents=True, exist_ok=True)
     cache_path.write_text(json.dumps(cache, indent=1, allow_nan=True))
     if docs:
-        (docs / "stabilization.md").write_text(render_doc(cache))
+        (docs / "stabilization.md").write_text(render_doc(cache, docs))
         print(f"\nwrote {docs / 'stabilization.md'}, {fig_dir}/stab_*.png")
     print(f"table wall time {table_wall:.1f} s on {os.cpu_count()} cores")
     return 0
+
+
+EXTENSION_RESULTS = "stab_extension_true_ratio.json"     # in docs/figures/, read by render_doc
+
+
+def _run_extension_model(args, runs: int, steps: int) -> int:
+    """`--model FILE`: the Table's runs for one method with FILE in its estimator (extension).
+
+    Writes only its own work directory (default runs/extension/stabilization) and results file
+    (docs/figures/stab_extension_true_ratio.json, or WORK/ with --quick): the main Table's cache
+    (docs/figures/stab_results.json), figures and docs/stabilization.md are left alone.
+    """
+    from incipient_slip.models.estimator_core import load_model
+    if len(args.methods) != 1 or args.methods[0] == "none":
+        print("slip reproduce stabilization: --model needs exactly one --methods (not none)", file=sys.stderr)
+        return 2
+    method = args.methods[0]
+    model_path = Path(args.model).resolve()
+    model = load_model(model_path, method=method)         # refuses a spec of another method
+    work = Path(args.out or (runs_dir() / "extension" / "stabilization"))
+    work.mkdir(parents=True, exist_ok=True)
+    docs = Path(args.docs) if args.docs else (None if args.quick else repo_root() / "docs")
+    out_path = (docs / "figures" / EXTENSION_RESULTS) if docs else work / EXTENSION_RESULTS
+    t0 = time.monotonic()
+    specs = make_specs((method,), runs, args.s_d, args.k, steps, work / "table", "ext", str(model_path))
+    summaries = GraphRunner(jobs=args.jobs, start=args.start).run(specs, _progress(len(specs), t0))
+    wall = time.monotonic() - t0
+    rows = table_rows({method: summaries})
+    print(f"\nEXTENSION (not the paper's method), SIMULATED rig, {method} with {model_path} "
+          f"({runs} runs, s_d = {args.s_d}, k = {args.k}): {wall:.1f} s")
+    print(format_table_text(rows))
+    try:
+        model_rel = str(model_path.relative_to(repo_root()))
+    except ValueError:
+        model_rel = str(model_path)
+    out = {"method": method, "model": model_rel, "label": model.header.get("label", "pseudo"),
+           "model_sha256": hashlib.sha256(model_path.read_bytes()).hexdigest(),
+           "model_test_rmse": model.header.get("test_rmse_mean"),
+           "runs": runs, "s_d": args.s_d, "k": args.k, "steps": steps, "wall_s": round(wall, 1),
+           "row": rows[method], "runs_detail": [_compact(s, False) for s in summaries]}
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    out_path.write_text(json.dumps(out, indent=1, allow_nan=True))
+    print(f"wrote {out_path} (main Table cache and docs/stabilization.md untouched)")
+    return 0
+
+
+def extension_section(docs_figures: Path) -> str:
+    """The extension section of docs/stabilization.md, from its own results file (if any)."""
+    path = docs_figures / EXTENSION_RESULTS
+    head = ["## Extension: injection trained on the simulator's true ratio", "",
+            "**Simulated rig only; an EXTENSION, not the paper's method.** Test (1) of \"What would "
+            "test it\" above: the injection regressor trained exactly like the shipped model "
+            "(`slip model regen` scale: data set 100 series per scene, seed 7, same grid, "
+            "max_train 3000, grid_max 1500, incipient range after_slip = drop, same held-out "
+            "series) but on the simulator's true load ratio `load_ratio_stick` = 1 − Q / (μ_s F_N) "
+            "of the window's last period (0 in gross slip) instead of the paper's pseudo label: "
+            "`slip train --method injection --data runs/regen/paper_100_s7 --max-train 3000 "
+            "--grid-max 1500 --after-slip drop --label true-ratio --out "
+            "runs/extension/injection_true_ratio.npz`. The true ratio is not measurable on "
+            "hardware; this only asks whether the label is why the loop fails here.", ""]
+    if not path.exists():
+        return "\n".join(head + ["(not run yet: `slip reproduce stabilization --methods injection "
+                                 "--model runs/extension/injection_true_ratio.npz`)", ""])
+    r = json.loads(path.read_text())
+    row = r["row"]
+    main = {}
+    main_path = docs_figures / "stab_results.json"
+    if main_path.exists():
+        main = json.loads(main_path.read_text()).get("table", {}).get("rows", {}).get(r["method"], {})
+
+    def line(name, d):
+        return (f"| {name} | {_fmt(d.get('success_rate'))} | {_fmt(d.get('y_mean'))} ± "
+                f"{_fmt(d.get('y_std'))} | {_fmt(d.get('fn_mean'))} ± {_fmt(d.get('fn_std'))} | "
+                f"{_fmt(d.get('steps_mean'), '.0f')} | {_fmt(d.get('tracking_error'), '.3f')} |")
+    table = ["| injection model (simulated rig) | success rate | y (mm) | F_N (kPa) | steps | "
+             "mean abs(ŝ − s_d) |", "|---|---|---|---|---|---|"]
+    if main:
+        table.append(line("pseudo label (shipped, the Table above)", main))
+    table.append(line(f"true ratio (extension, `{r['model']}`)", row))
+    det = r.get("runs_detail", [])
+    lim = [d for d in det if not d.get("success") and d.get("final_force_kpa", 0) >= control.SAFETY_LIMIT_KPA - 1e-6]
+    low = [d for d in det if not d.get("success") and d not in lim]
+    low_txt = ", ".join(f"{d['material']} at F_N {d['final_force_kpa']:.2f} kPa" for d in low) or "–"
+    reading = (f"Reading it (simulated rig, extension): {sum(bool(d.get('success')) for d in det)} of "
+               f"{len(det)} runs held all {r['steps']} steps (pseudo-label model: success rate {_fmt(main.get('success_rate'))}); "
+               f"{len(lim)} failed by reaching the F_N limit (after "
+               f"{', '.join(str(d['steps']) for d in lim) or '–'} steps) and {len(low)} on y > 1.5 mm "
+               f"({low_txt}). "
+               + ("So changing only the training target moves the loop towards holding, consistent "
+                  "with the diagnosis that the pseudo label is a main cause here; "
+                  if row.get("success_rate", 0) > main.get("success_rate", 0) else
+                  "So changing only the training target does not make the loop hold; ")
+               + "the true-ratio model's held-out RMSE to the true ratio is "
+               f"{_fmt(r.get('model_test_rmse'), '.3f')}, and the oracle (the law on the true ratio "
+               "itself, docs/simulator.md) remains the reference for what a perfect estimate does.")
+    table += ["", reading]
+    return "\n".join(head + [
+        f"{r['runs']} runs through `launch stabilize.yaml method:={r['method']} model:=...` "
+        f"(same seeds and materials as the Table, s_d = {r['s_d']}, k = {r['k']}, at most "
+        f"{r['steps']} steps; model sha256 {r['model_sha256'][:8]}…, header label "
+        f"`{r['label']}`). Regenerate: `slip reproduce stabilization --methods injection --model "
+        f"{r['model']}` (writes docs/figures/{EXTENSION_RESULTS} only).", "", *table, ""])
 
 
 # Hand-written diagnosis (bench/diagnose_closed_loop.py, simulated rig); kept verbatim in the
@@ -620,7 +730,7 @@ Reading it (simulated rig):
 """
 
 
-def render_doc(cache: dict) -> str:
+def render_doc(cache: dict, docs: Path | None = None) -> str:
     """docs/stabilization.md from the cached results (every number labelled simulation)."""
     t = cache["table"]
     rows = t["rows"]
@@ -776,6 +886,7 @@ def render_doc(cache: dict) -> str:
         "alone is ~1.5 s CPU); `--start exec` runs the `launch` command itself for every run.",
         "",
         DIAGNOSIS_SECTION,
+        extension_section(Path(docs or repo_root() / "docs") / "figures"),
         "## What would change it",
         "",
         "The simulator's stick-slip parameters (owned by the simulator, `sim/params/default.yaml`) "
@@ -809,6 +920,10 @@ def register(subparsers, reproduce) -> None:
     p.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1), help="graphs in parallel")
     p.add_argument("--start", choices=("fork", "exec"), default="fork",
                    help="fork nodes from a pre-imported parent (default) or exec the launch command")
+    p.add_argument("--model", type=Path, metavar="FILE",
+                   help="EXTENSION: run the Table for the one --methods method with FILE in its "
+                   "estimator; writes docs/figures/stab_extension_true_ratio.json (or --out with "
+                   "--quick) and runs/extension/stabilization, never the main Table or page")
     p.add_argument("--render-only", action="store_true",
                    help="rewrite docs/stabilization.md from the cached results, run nothing")
     p.add_argument("--out", type=Path, help="work directory (default runs/stabilization)")

@@ -54,3 +54,43 @@ def test_mocap_average_falls_back_to_interpolation_between_sparse_samples():
     t = np.array([0.0, 1.0])
     np.testing.assert_allclose(mocap_mean_between(t, np.array([0.0, 2.0]), np.array([0.4]),
                                                   np.array([0.6])), [1.0])
+
+
+def test_true_ratio_label_is_the_periods_load_ratio_and_zero_in_gross_slip():
+    from incipient_slip.models.labels import true_ratio_label
+    lrs = np.array([0.9, 0.6, np.nan, 1.3, -0.1, 0.4])
+    slip = np.array([False, False, False, False, False, True])
+    np.testing.assert_allclose(true_ratio_label(lrs, slip), [0.9, 0.6, 0.0, 1.0, 0.0, 0.0])
+
+
+def test_label_option_changes_only_the_targets(fake_injection_dir, tmp_path):
+    # extension (not the paper's method): --label true-ratio trains on load_ratio_stick[k]
+    import shutil
+    import pytest
+    from incipient_slip.models import dataset as ds
+    from incipient_slip.models.features import feature_spec
+    from incipient_slip.models.labels import label_series, true_ratio_label
+    from incipient_slip.models.training import load_windows
+    # the fake data's truth equals the pseudo label: make it differ (half, one nan period)
+    shutil.copytree(fake_injection_dir, tmp_path / "d")
+    fake_injection_dir = tmp_path / "d"
+    for path in ds.series_paths(fake_injection_dir):
+        z = dict(np.load(path))
+        z["load_ratio_stick"] = 0.5 * z["load_ratio_stick"]
+        z["load_ratio_stick"][3] = np.nan
+        np.savez(path, **z)
+    spec = feature_spec("e4")
+    pseudo = load_windows(fake_injection_dir, spec, progress=False, after_slip="drop")
+    true = load_windows(fake_injection_dir, spec, progress=False, after_slip="drop", label="true-ratio")
+    np.testing.assert_array_equal(pseudo.X, true.X)
+    np.testing.assert_array_equal(pseudo.period, true.period)
+    expect = true_ratio_label(true.load_ratio_stick, np.zeros(len(true.y), bool))
+    for path in ds.series_paths(fake_injection_dir):          # period k's value, 0 in gross slip
+        s = ds.load_series(path)
+        rows = true.series == s.index
+        expect[rows] = true_ratio_label(s.load_ratio_stick, s.gross_slip)[true.period[rows]]
+        np.testing.assert_allclose(pseudo.y[rows], label_series(s).pseudo_stick_ratio[pseudo.period[rows]])
+    np.testing.assert_allclose(true.y, expect)
+    assert not np.allclose(true.y, pseudo.y)
+    with pytest.raises(ValueError):
+        load_windows(fake_injection_dir, spec, progress=False, label="bogus")

@@ -49,6 +49,9 @@ def register(subparsers, reproduce) -> None:
     p.add_argument("--window-s", type=float, default=1.0, help="window T in seconds (default 1.0)")
     p.add_argument("--after-slip", default="zero", choices=("zero", "drop"),
                    help="windows after gross slip: label 0 (paper) or leave out")
+    p.add_argument("--label", default="pseudo", choices=("pseudo", "true-ratio"),
+                   help="training target: the paper's pseudo-stick ratio (default) or, as an "
+                   "EXTENSION (not the paper's method), the simulator's true load_ratio_stick")
     p.add_argument("--quick", action="store_true", help="small grid")
     p.add_argument("--out", type=Path, help="model file (default runs/models/METHOD.npz)")
     p.set_defaults(func=cmd_train)
@@ -124,14 +127,14 @@ def _train(args) -> int:
     from ..paths import runs_dir
     from .training import held_out_series, load_windows, split_train_test, train_model
     spec = feature_spec(args.method, window_s=args.window_s)
-    ws = load_windows(args.data, spec, after_slip=args.after_slip)
+    ws = load_windows(args.data, spec, after_slip=args.after_slip, label=args.label)
     test_series = held_out_series(ws.series_materials())
     train, test = split_train_test(ws, test_series)
     res = train_model(train, args.kind, max_train=args.max_train, grid_max=args.grid_max,
                       n_components=args.components, quick=args.quick)
     sc = series_scores(args.method, test.y, res.model.predict(test.X), test.series, test.material)
     res.model.header.update(test_series=[int(v) for v in test_series], after_slip=args.after_slip,
-                            test_rmse_mean=float(sc.rmse.mean()))
+                            label=args.label, test_rmse_mean=float(sc.rmse.mean()))
     out = args.out or runs_dir() / "models" / f"{args.method}.npz"
     save_model(res.model, out)
     s = sc.summary()
@@ -160,7 +163,8 @@ def _evaluate(args) -> int:
             if args.data_no_injection is None:
                 raise ValueError(f"{path}: a vibrotactile model needs --data-no-injection")
             data = args.data_no_injection
-        ws = load_windows(data, model.spec, after_slip=model.header.get("after_slip", "zero"))
+        ws = load_windows(data, model.spec, after_slip=model.header.get("after_slip", "zero"),
+                          label=model.header.get("label", "pseudo"))
         if test_series is None:
             test_series = held_out_series(ws.series_materials())
         te = ws.subset(np.isin(ws.series, test_series))

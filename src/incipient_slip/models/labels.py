@@ -18,6 +18,13 @@ The rule (paper, "Labeling pseudo-stick ratio"):
 * s_k = clip(1 - F_T[k] / F_T^slip, 0, 1) for k < k_slip and s_k = 0 for k >= k_slip.
 * A series without detected gross slip has no F_T^slip; `label_series` says so
   (`gross_slip_index == -1`) and training skips it (the paper's series all slip).
+
+EXTENSION, not the paper's method: `training_labels(..., label="true-ratio")` replaces the pseudo
+label by the simulator's true load ratio `load_ratio_stick` = 1 - Q / (mu_s F_N) of period k for
+the window ending at period k (0 where the simulator flags gross slip, or has no value). Only a
+simulated data set stores it; it tests whether the pseudo label is why the closed loop fails
+(docs/stabilization.md). The window selection (and the gross-slip onset used by
+after_slip="drop") stays the paper's mocap rule, so only the target changes.
 """
 from __future__ import annotations
 
@@ -29,6 +36,7 @@ GROSS_SLIP_MM = 0.02          # travel per 500 ms that counts as gross slip (pap
 GROSS_SLIP_SPAN_S = 0.5       # second half of the paper's T = 1.0 s window (= one period)
 EARLY_S = 0.025               # mocap averaged over the first 25 ms of the period ...
 LATE_S = 0.05                 # ... and over its last 50 ms
+LABELS = ("pseudo", "true-ratio")   # "pseudo": the paper's rule (default); "true-ratio": extension
 
 
 @dataclass(frozen=True)
@@ -103,3 +111,26 @@ def label_error_vs_truth(pseudo: np.ndarray, stick_area_ratio: np.ndarray,
         out[name] = {"rmse": float(np.sqrt(np.mean(err ** 2))), "bias": float(np.mean(err)),
                      "n": int(ok.sum())}
     return out
+
+
+def true_ratio_label(load_ratio_stick: np.ndarray, gross_slip: np.ndarray | None = None) -> np.ndarray:
+    """Return the simulator's true load ratio per period as a label (EXTENSION, not the paper's).
+
+    s_k = clip(load_ratio_stick[k], 0, 1); 0 where the simulator flags gross slip or stores nan.
+    """
+    s = np.clip(np.nan_to_num(np.asarray(load_ratio_stick, dtype=np.float64), nan=0.0), 0.0, 1.0)
+    if gross_slip is not None:
+        s = np.where(np.asarray(gross_slip, dtype=bool), 0.0, s)
+    return s
+
+
+def training_labels(series, lab: SeriesLabels, label: str = "pseudo") -> np.ndarray:
+    """Return the per-period training target of a series for the label option `label`."""
+    if label == "pseudo":
+        return lab.pseudo_stick_ratio
+    if label == "true-ratio":
+        if not np.isfinite(series.load_ratio_stick).any():
+            raise ValueError(f"series {series.index}: no load_ratio_stick stored; --label true-ratio "
+                             "needs a simulated data set")
+        return true_ratio_label(series.load_ratio_stick, series.gross_slip)
+    raise ValueError(f"label {label!r} unknown; expected one of {', '.join(LABELS)}")

@@ -27,7 +27,7 @@ from tqdm import tqdm
 
 from . import dataset as ds
 from .features import FeatureSpec, feature_spec, series_features, valid_window_mask
-from .labels import label_series
+from .labels import LABELS, label_series, training_labels
 from .modelfile import Model
 
 SPLIT_SEED = 20240917
@@ -40,7 +40,7 @@ class WindowSet:
     """All labelled windows of a data set for one feature spec, one row per window."""
 
     X: np.ndarray               # (n, n_features) float32
-    y: np.ndarray               # pseudo-stick ratio
+    y: np.ndarray               # pseudo-stick ratio (or the label option's target)
     series: np.ndarray          # series index (the group)
     material: np.ndarray        # material name per row
     period: np.ndarray          # period index k within its series
@@ -69,14 +69,18 @@ AFTER_SLIP = ("zero", "drop")
 
 
 def load_windows(data_dir: str | Path, spec: FeatureSpec, min_window_s: float | None = None,
-                 progress: bool = True, after_slip: str = "zero") -> WindowSet:
+                 progress: bool = True, after_slip: str = "zero", label: str = "pseudo") -> WindowSet:
     """Return every labelled window of a data set for `spec` (one series file at a time).
 
     min_window_s: keep only windows that would also be complete for a window of this length
     (used to compare different T on the same samples).
     after_slip: "zero" keeps the windows after gross slip with label 0 (the paper's rule);
     "drop" keeps windows up to and including the gross-slip onset only (incipient slip range).
+    label: "pseudo" (the paper's rule) or "true-ratio" (EXTENSION: the simulator's
+    load_ratio_stick, see labels.training_labels); the windows kept are the same for both.
     """
+    if label not in LABELS:
+        raise ValueError(f"label {label!r} unknown; expected one of {', '.join(LABELS)}")
     if after_slip not in AFTER_SLIP:
         raise ValueError(f"after_slip {after_slip!r} unknown; expected one of {AFTER_SLIP}")
     meta = ds.read_meta(data_dir)
@@ -104,7 +108,7 @@ def load_windows(data_dir: str | Path, spec: FeatureSpec, min_window_s: float | 
         if len(k) == 0:
             continue
         X = series_features(s, spec, s.period_end_s[k])
-        parts.append((X, lab.pseudo_stick_ratio[k], np.full(len(k), s.index),
+        parts.append((X, training_labels(s, lab, label)[k], np.full(len(k), s.index),
                       np.full(len(k), s.material, dtype=object), k, s.stick_area_ratio[k],
                       s.load_ratio_stick[k], s.tangential_force_n[k], s.normal_force_kpa[k],
                       k > lab.gross_slip_index))
