@@ -90,7 +90,7 @@ def register(subparsers, reproduce) -> None:
         "the shared held-out series, write figures and docs/estimation.md. --quick runs a small "
         "version into --out only (used by the tests).")
     e.add_argument("--quick", action="store_true", help="small data set and grid; docs untouched")
-    e.add_argument("--series", type=int, help="series per data set (default 500, quick 12)")
+    e.add_argument("--series", type=int, help="series per data set (default 500, quick 10)")
     e.add_argument("--seed", type=int, default=0)
     e.add_argument("--max-train", type=int, help="windows per exact SVR fit (default 8000, quick 1500)")
     e.add_argument("--out", type=Path, help="work directory (default runs/estimation[-quick])")
