@@ -248,3 +248,17 @@ def test_estimator_killed_mid_run_controller_holds_within_one_period_and_run_end
     assert all(c.hold for c in after[1:])           # never ramps once the estimates stopped
     assert all(c.normal_force_kpa <= control.SAFETY_LIMIT_KPA for _, c in watcher.commands)
     assert last_free > 0
+
+
+@pytest.mark.timeout(60)
+def test_launch_ends_at_once_with_the_error_when_the_rig_cannot_start(graph, tmp_path):
+    proc = graph.spawn(launch_cmd("material:=wood", f"summary:={tmp_path / 'run.json'}"))
+    rc, out, err = finish(proc, timeout=30)
+    assert rc == 2 and "material" in err and "wood" in err
+
+
+@pytest.mark.timeout(60)
+def test_unknown_method_is_refused_at_start(graph, tmp_path):
+    proc = graph.spawn(launch_cmd("method:=bogus", f"summary:={tmp_path / 'run.json'}"))
+    rc, out, err = finish(proc, timeout=30)
+    assert rc == 2 and "method:='bogus' is unknown" in err

@@ -37,7 +37,7 @@ def register(subparsers, reproduce) -> None:
     p = subparsers.add_parser(
         "train", help="train a slip model (SVR by grid search) on a data set",
         description="Train the slip model f of one method on DIR (written by `slip dataset`). "
-        "The held-out 10 %% of series (the same for every method) is left out and scored.")
+        "The held-out 10 % of series (the same for every method) is left out and scored.")
     p.add_argument("--method", required=True, choices=METHODS, help="feature method")
     p.add_argument("--data", required=True, type=Path, metavar="DIR", help="data set directory")
     p.add_argument("--kind", default="svr", choices=("svr", "nystroem", "linear"),
@@ -58,7 +58,7 @@ def register(subparsers, reproduce) -> None:
 
     p = subparsers.add_parser(
         "evaluate", help="score model files on the held-out series of a data set",
-        description="Per-series RMSE and top-10 %% RMSE (RMSE over each series' 10 %% largest "
+        description="Per-series RMSE and top-10 % RMSE (RMSE over each series' 10 % largest "
         "absolute errors) on the held-out series, per material, paired t-tests vs the first "
         "model with Holm correction.")
     p.add_argument("--data", required=True, type=Path, metavar="DIR",
@@ -77,8 +77,10 @@ def register(subparsers, reproduce) -> None:
         description="Simulate the small training data sets (scene paper and no_injection, "
         f"{DEFAULT_REGEN['series']} series each, seed {DEFAULT_REGEN['seed']}), grid-search and fit "
         "an exact SVR per method and write models/METHOD.npz. Same code + same seed -> same files.")
-    r.add_argument("--series", type=int, default=DEFAULT_REGEN["series"], help="series per data set")
-    r.add_argument("--seed", type=int, default=DEFAULT_REGEN["seed"], help="data set seed")
+    r.add_argument("--series", type=int, default=DEFAULT_REGEN["series"],
+                   help=f"series per data set (default {DEFAULT_REGEN['series']})")
+    r.add_argument("--seed", type=int, default=DEFAULT_REGEN["seed"],
+                   help=f"data set seed (default {DEFAULT_REGEN['seed']})")
     r.add_argument("--work", type=Path, default=None, help="data directory (default runs/regen)")
     r.add_argument("--out", type=Path, default=None, help="model directory (default models/)")
     r.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))

@@ -15,7 +15,7 @@ from __future__ import annotations
 import time
 
 from incipient_slip import control
-from incipient_slip.messages import ActuatorState, GripCommand, SlipEstimate
+from incipient_slip.messages import METHODS, ActuatorState, GripCommand, SlipEstimate
 from incipient_slip.nodes.params import ParamError
 from incipient_slip.nodes.runtime import Node, run_node
 
@@ -55,6 +55,8 @@ class GripController(Node):
             max_step_kpa=self.param("max_step_kpa"), min_force_kpa=self.param("min_force_kpa"),
             max_force_kpa=self.param("max_force_kpa"))
         self.method = self.param("method")
+        if self.method not in METHODS:
+            raise ParamError(f"method:={self.method!r} is unknown; use one of {', '.join(METHODS)}")
         self.force_kpa = control.clamp_force(self.param("initial_force_kpa"), self.law)
         self.last_answered = -1
         self.last_tick = -1

@@ -675,11 +675,14 @@ class Launcher:
                     proc.respawn_at = now + spec.respawn_delay
                     alive += 1
                 elif spec.required:
-                    verb = "finished" if rc == 0 else "died"
+                    # "died" only for a signal: a node's own non-zero code is an outcome it chose
+                    # (e.g. the supervisor reporting a failed run), not necessarily a crash
+                    verb = "finished" if rc == 0 else ("died" if rc < 0 else "exited")
                     self.say(f"required node {spec.name} {verb} with {_describe(rc)}; shutting down the graph")
                     self._shutdown()
                     if rc != 0:
-                        self.say(f"launch failed: required node {spec.name} {_describe(rc)}")
+                        self.say(f"launch ends with code {_exit_code(rc)}: required node {spec.name} "
+                                 f"{_describe(rc)}")
                     return _exit_code(rc)
                 else:
                     self.say(f"{spec.name} exited with {_describe(rc)}")

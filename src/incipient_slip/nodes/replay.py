@@ -44,6 +44,9 @@ class Replay(Node):
 
     def __init__(self, **kwargs):
         super().__init__("replay", **kwargs)
+        if not str(self.param("path")).strip():
+            raise ParamError(f"node {self.name!r}: parameter 'path' is empty: name the MCAP "
+                             "recording to play (in a launch file, e.g. recording:=run.mcap)")
         self.path = resolve_bag_path(self.param("path"))
         if not self.param("rate") > 0:
             raise ParamError(f"node {self.name!r}: rate must be > 0, got {self.param('rate')}")
