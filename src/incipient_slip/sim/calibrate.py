@@ -268,6 +268,7 @@ def report_markdown(scene: Scene, res: dict) -> str:
     ycn = np.mean([v[0] for v in nc.values()])
     cov = res["coverage"]
     orc = res["oracle"]
+    n_held = sum(v["held"] >= 1.0 for v in orc.values())
     hist = res["label_hist"]
     per = res["onset_by_material"]
     no_onset = res["onset_period"][1]
@@ -291,8 +292,7 @@ def report_markdown(scene: Scene, res: dict) -> str:
         f"| largest constant F_N that slides grossly within 23 mm | - | "
         f"{', '.join(f'{m} {v:.1f} kPa' for m, v in cov.items())} |",
         f"| ORACLE: paper's law (s_d 0.3, k 2 kPa, 1.1..6.0 kPa, 0.5 kPa/period) on the true load_ratio_stick holds y <= 1.5 mm for 450 steps | possible (injection: y 1.38 mm, F_N 4.50 kPa) | "
-        (f"yes" if held else f"on {sum(v['held'] >= 1.0 for v in orc.values())} of {len(orc)} materials")
-        + ": final y / F_N / held " + ", ".join(
+        f"{'yes' if held else f'on {n_held} of {len(orc)} materials'}: final y / F_N / held " + ", ".join(
             f"{m} {v['y']:.2f} mm / {v['fn']:.2f} kPa / {v['held']:.0%}" for m, v in orc.items()) + " |",
         f"| mean onset period (label rule) / series without onset | - | {res['onset_period'][0]:.0f} / {no_onset:.0%} |",
         f"| label distribution s before onset (10 bins 0..1) | not given | {' '.join(str(int(h)) for h in hist)} |",
