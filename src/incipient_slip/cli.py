@@ -20,6 +20,12 @@ COMMAND_MODULES = (
 )
 
 
+def fail(msg: str, where: str = "slip") -> int:
+    """Reports bad user input as one line on stderr (no traceback); returns exit code 2."""
+    print(f"{where}: error: {msg}", file=sys.stderr)
+    return 2
+
+
 def build_parser(modules: tuple[str, ...] = COMMAND_MODULES) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="slip",

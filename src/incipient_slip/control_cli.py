@@ -15,7 +15,6 @@ itself for every run (slower; a cross-check).
 """
 from __future__ import annotations
 
-import argparse
 import importlib
 import hashlib
 import json

@@ -6,11 +6,11 @@ prints one line naming the thing and exits 2, without a traceback.
 """
 from __future__ import annotations
 
-import argparse
 import json
-import sys
 import time
 from pathlib import Path
+
+from incipient_slip.cli import fail
 
 from .features import METHODS
 
@@ -19,11 +19,6 @@ from .features import METHODS
 # first gross slip, where the contact re-sticks between slides while the label stays 0, and a
 # model trained on them answers "about 0" for most stuck contacts - useless for holding s_d = 0.3.
 DEFAULT_REGEN = {"series": 100, "seed": 7, "max_train": 3000, "grid_max": 1500, "after_slip": "drop"}
-
-
-def _fail(msg: str) -> int:
-    print(f"slip: error: {msg}", file=sys.stderr)
-    return 2
 
 
 def _user_errors():
@@ -115,7 +110,7 @@ def _run(fn, args) -> int:
     try:
         return fn(args)
     except _user_errors() as exc:
-        return _fail(str(exc))
+        return fail(str(exc))
 
 
 def cmd_train(args) -> int:

@@ -13,7 +13,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from .evaluation import TOP_FRACTION  # noqa: E402
-from .features import feature_spec, phi  # noqa: E402
+from .features import feature_spec  # noqa: E402
 
 LABEL = "simulated rig"
 NAMES = {"injection": "injection (ours)", "vibrotactile": "vibrotactile", "e19": "E19",
@@ -154,12 +154,10 @@ def write_figures(study, fig_dir: Path, prefix: str = "est_") -> dict:
             "bars": fig_bars(study, fig_dir / f"{prefix}rmse_bars.png"),
             "material": fig_material(study, fig_dir / f"{prefix}rmse_material.png")}
     if "injection" in study.results:
-        inj = study.results["injection"]
         from .training import load_windows
         ws = load_windows(study.data_dirs["paper"], feature_spec("injection"), progress=False)
         figs["spectrum"] = fig_spectrum(ws, fig_dir / f"{prefix}spectrum.png")
         figs["band"], figs["band_r_pooled"], figs["band_r_within"] = fig_band(ws, fig_dir / f"{prefix}band200_vs_ft.png")
-        del inj
     return figs
 
 

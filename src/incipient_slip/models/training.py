@@ -26,7 +26,7 @@ import numpy as np
 from tqdm import tqdm
 
 from . import dataset as ds
-from .features import FeatureSpec, feature_spec, series_features, valid_window_mask
+from .features import FeatureSpec, series_features, valid_window_mask
 from .labels import LABELS, label_series, training_labels
 from .modelfile import Model
 

@@ -16,6 +16,7 @@ import time
 from collections import deque
 from pathlib import Path
 
+from incipient_slip.cli import fail
 from incipient_slip.messages import MessageError, decode_any, to_plain
 from incipient_slip.nodes import bus
 from incipient_slip.nodes.bag import BagError, bag_info
@@ -246,8 +247,7 @@ def _guard(handler):
         try:
             return handler(args)
         except (UsageError, BagError, ValueError) as exc:
-            print(f"slip {args.command} {getattr(args, 'tool', '')}: error: {exc}", file=sys.stderr)
-            return 2
+            return fail(str(exc), where=f"slip {args.command} {getattr(args, 'tool', '')}".rstrip())
     return run
 
 

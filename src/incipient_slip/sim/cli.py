@@ -1,17 +1,11 @@
 """`slip dataset` and `slip sim calibrate`: the simulated rig's command-line entry points."""
 from __future__ import annotations
 
-import argparse
-import sys
 import time
 from pathlib import Path
 
+from incipient_slip.cli import fail
 from incipient_slip.paths import repo_root
-
-
-def _fail(msg: str) -> int:
-    print(f"slip: error: {msg}", file=sys.stderr)
-    return 2
 
 
 def _scene(name: str):
@@ -28,21 +22,21 @@ def cmd_dataset(args) -> int:
 
     scene, err = _scene(args.scene)
     if err:
-        return _fail(err)
+        return fail(err)
     if args.series < 1:
-        return _fail(f"--series must be >= 1, got {args.series}")
+        return fail(f"--series must be >= 1, got {args.series}")
     if args.workers is not None and args.workers < 1:
-        return _fail(f"--workers must be >= 1, got {args.workers}")
+        return fail(f"--workers must be >= 1, got {args.workers}")
     if not 1 <= args.steps <= 100000:
-        return _fail(f"--steps must be in 1..100000, got {args.steps}")
+        return fail(f"--steps must be in 1..100000, got {args.steps}")
     out = Path(args.out)
     if out.exists() and not out.is_dir():
-        return _fail(f"--out {out} exists and is not a directory")
+        return fail(f"--out {out} exists and is not a directory")
     if out.is_dir() and any(out.glob("series_*.npz")) and not args.overwrite:
-        return _fail(f"--out {out} already holds a data set (series_*.npz); pass --overwrite or choose another directory")
+        return fail(f"--out {out} already holds a data set (series_*.npz); pass --overwrite or choose another directory")
     unknown = [m for m in (args.materials or []) if m not in scene.params["materials"]]
     if unknown:
-        return _fail(f"unknown material(s) {', '.join(unknown)} (known: {', '.join(scene.params['materials'])})")
+        return fail(f"unknown material(s) {', '.join(unknown)} (known: {', '.join(scene.params['materials'])})")
     t0 = time.perf_counter()
     write_dataset(scene, args.series, args.seed, out, materials=args.materials, workers=args.workers,
                   steps=args.steps, progress=not args.quiet)
@@ -57,11 +51,11 @@ def cmd_calibrate(args) -> int:
 
     scene, err = _scene(args.scene)
     if err:
-        return _fail(err)
+        return fail(err)
     if args.series < 1:
-        return _fail(f"--series must be >= 1, got {args.series}")
+        return fail(f"--series must be >= 1, got {args.series}")
     if not scene.has("injection"):
-        return _fail(f"scene {scene.name!r} has no 'injection' effect; the 200 Hz band target needs it")
+        return fail(f"scene {scene.name!r} has no 'injection' effect; the 200 Hz band target needs it")
     out = Path(args.out)
     fig_dir = out.parent / "figures"
     res = run_calibration(scene, n_per_material=args.series, seed=args.seed, fig_dir=fig_dir)

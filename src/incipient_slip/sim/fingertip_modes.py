@@ -8,7 +8,6 @@ Coefficients change once per period (or at a slide); the section states are carr
 from __future__ import annotations
 
 import numpy as np
-from scipy import signal
 
 from .sos import SosFilter
 
