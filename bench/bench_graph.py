@@ -26,7 +26,7 @@ import numpy as np
 import zmq
 
 from incipient_slip.messages import BiotacPac, RunEvent
-from incipient_slip.nodes.runtime import Node
+from incipient_slip.graph.runtime import Node
 
 BLOCKS = 6              # alternating latency blocks per path
 PER_BLOCK = 400

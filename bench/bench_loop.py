@@ -38,7 +38,7 @@ from incipient_slip.messages import (
 from incipient_slip.models.estimator_core import default_model_path, load_model
 from incipient_slip.models.features import phi
 from incipient_slip.nodes.rig_sim import FRAMES_PER_PERIOD, PERIOD_NS, pac_frame_stamps_ns
-from incipient_slip.nodes.runtime import Node
+from incipient_slip.graph.runtime import Node
 from incipient_slip.sim.rig import Rig, load_scene
 
 GOAL_P99_MS = 2.0

@@ -13,7 +13,7 @@ import sys
 
 # each module defines register(subparsers, reproduce) -> None
 COMMAND_MODULES = (
-    "incipient_slip.nodes.tools",       # topic list|echo|hz, bag record|play|info
+    "incipient_slip.graph.tools",       # topic list|echo|hz, bag record|play|info
     "incipient_slip.sim.cli",           # dataset, sim calibrate
     "incipient_slip.models.cli",        # train, evaluate, reproduce estimation, model regen
     "incipient_slip.control_cli",       # reproduce stabilization

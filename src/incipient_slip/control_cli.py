@@ -119,7 +119,7 @@ class GraphRunner:
         if start not in ("fork", "exec"):
             raise ValueError(f"start must be 'fork' or 'exec', got {start!r}")
         self.jobs, self.start, self.timeout_s = max(1, jobs), start, timeout_s
-        from incipient_slip.nodes import launcher
+        from incipient_slip.graph import launch as launcher
         self.launcher = launcher
         self.launch_file = launcher.find_launch_file("stabilize.yaml")
         if start == "fork":
@@ -157,7 +157,7 @@ class GraphRunner:
         g = _Graph(spec, directory, started=time.monotonic())
         g.log = open(spec.log_path, "wb")
         if self.start == "exec":
-            cmd = [sys.executable, "-m", "incipient_slip.nodes.launcher", str(self.launch_file)]
+            cmd = [sys.executable, "-m", "incipient_slip.graph.launch", str(self.launch_file)]
             cmd += [f"{k}:={v}" for k, v in spec.launch_args().items()]
             env = dict(os.environ, SLIP_GRAPH_DIR=str(directory), PYTHONUNBUFFERED="1")
             g.popen = subprocess.Popen(cmd, stdout=g.log, stderr=subprocess.STDOUT, env=env,

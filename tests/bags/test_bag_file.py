@@ -11,7 +11,7 @@ import pytest
 from mcap.reader import make_reader
 
 from incipient_slip.messages import BiotacPac, Heartbeat, SlipEstimate, encode
-from incipient_slip.nodes.bag import BagError, BagWriter, bag_info, json_schema, read_bag
+from incipient_slip.graph.bag import BagError, BagWriter, bag_info, json_schema, read_bag
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 

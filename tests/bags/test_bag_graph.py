@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from incipient_slip.messages import BiotacPac
-from incipient_slip.nodes.bag import bag_info, read_bag
-from incipient_slip.nodes.runtime import Node
+from incipient_slip.graph.bag import bag_info, read_bag
+from incipient_slip.graph.runtime import Node
 
 HERE = Path(__file__).resolve().parent
 DEMO = HERE.parent / "data" / "demo.mcap"
-LAUNCH = [sys.executable, "-m", "incipient_slip.nodes.launcher"]
+LAUNCH = [sys.executable, "-m", "incipient_slip.graph.launch"]
 
 
 def launch(graph, file: str, timeout: float = 40.0, **args) -> subprocess.CompletedProcess:
@@ -80,10 +80,10 @@ def publish_until(proc: subprocess.Popen, pub, node: Node, first: int, then: int
 def test_recorder_stopped_by_signal_leaves_a_valid_file_with_every_message_received(graph, tmp_path, how):
     out = tmp_path / "stopped.mcap"
     if how == "node_sigterm":
-        argv = ["python", "-m", "incipient_slip.nodes.recorder", f"path:={out}", 'topics:=["/biotac/pac"]']
+        argv = ["python", "-m", "incipient_slip.graph.recorder", f"path:={out}", 'topics:=["/biotac/pac"]']
         sig = signal.SIGTERM
     else:
-        argv = ["python", "-m", "incipient_slip.nodes.tools", "bag", "record", str(out), "/biotac/pac"]
+        argv = ["python", "-m", "incipient_slip.graph.tools", "bag", "record", str(out), "/biotac/pac"]
         sig = signal.SIGINT
     recorder = graph.spawn(argv)
     with Node("test_publisher", heartbeat_s=0) as node:

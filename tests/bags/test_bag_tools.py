@@ -1,6 +1,6 @@
 """`slip topic ...` and `slip bag ...`: what they print, and one clear line + exit 2 on bad input.
 
-The commands are run as `python -m incipient_slip.nodes.tools` (the same handlers `slip`
+The commands are run as `python -m incipient_slip.graph.tools` (the same handlers `slip`
 registers) so that these tests do not depend on the other areas' sub-commands.
 """
 from __future__ import annotations
@@ -12,11 +12,11 @@ from pathlib import Path
 
 import pytest
 
-from incipient_slip.nodes import tools
-from incipient_slip.nodes.bag import bag_info
+from incipient_slip.graph import tools
+from incipient_slip.graph.bag import bag_info
 
 DEMO = Path(__file__).resolve().parents[1] / "data" / "demo.mcap"
-TOOLS = [sys.executable, "-m", "incipient_slip.nodes.tools"]
+TOOLS = [sys.executable, "-m", "incipient_slip.graph.tools"]
 
 
 def slip(*args, timeout=30, env=None) -> subprocess.CompletedProcess:
@@ -124,7 +124,7 @@ def test_topic_hz_reports_the_rate(playing):
 
 @pytest.mark.timeout(60)
 def test_demo_launch_prints_a_summary_and_exits_0(graph):
-    run = subprocess.run([sys.executable, "-m", "incipient_slip.nodes.launcher", "demo.yaml",
+    run = subprocess.run([sys.executable, "-m", "incipient_slip.graph.launch", "demo.yaml",
                           "rate:=4"], capture_output=True, text=True, timeout=50, env=graph.env)
     assert run.returncode == 0, run.stdout + run.stderr
     assert "648 messages on 5 topics" in run.stdout

@@ -20,14 +20,14 @@ import pytest
 
 from incipient_slip import control
 from incipient_slip.messages import GripCommand, Heartbeat, ObjectPose, RobotState, RunEvent, SlipEstimate
-from incipient_slip.nodes import bus
-from incipient_slip.nodes.runtime import Node
+from incipient_slip.graph import discovery
+from incipient_slip.graph.runtime import Node
 
 PERIOD_NS = 500_000_000
 
 
 def launch_cmd(*args):
-    return [sys.executable, "-m", "incipient_slip.nodes.launcher", "stabilize.yaml", *args]
+    return [sys.executable, "-m", "incipient_slip.graph.launch", "stabilize.yaml", *args]
 
 
 def finish(proc, timeout=45):
@@ -231,7 +231,7 @@ def test_estimator_killed_mid_run_controller_holds_within_one_period_and_run_end
     proc = graph.spawn(launch_cmd("s_d:=0.8", "k:=0.5", f"summary:={summary}"))
     watcher = Watcher(graph.dir)
     watcher.spin_until(lambda: sum(1 for _, c in watcher.commands if not c.hold) >= 5, proc)
-    estimator = [n for n in bus.scan(graph.dir) if n.name == "estimator"]
+    estimator = [n for n in discovery.scan(graph.dir) if n.name == "estimator"]
     assert estimator, "no estimator announced in the graph"
     os.kill(estimator[0].pid, signal.SIGKILL)
     killed_at = time.monotonic()

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from incipient_slip.messages import decode_any
-from incipient_slip.nodes.bag import read_bag
+from incipient_slip.graph.bag import read_bag
 from incipient_slip.sim.protocols import run_collection
 from incipient_slip.sim.rig import Rig, load_scene
 
@@ -18,7 +18,7 @@ STEPS = 6
 @pytest.mark.timeout(90)
 def test_collect_launch_records_every_period_of_the_series(graph, tmp_path):
     out = tmp_path / "series.mcap"
-    proc = graph.spawn([sys.executable, "-m", "incipient_slip.nodes.launcher", "collect.yaml",
+    proc = graph.spawn([sys.executable, "-m", "incipient_slip.graph.launch", "collect.yaml",
                         f"steps:={STEPS}", "speed:=50", "seed:=3", "material:=pla", f"out:={out}"])
     _, err = proc.communicate(timeout=80)
     assert proc.returncode == 0, err.decode()[-3000:]

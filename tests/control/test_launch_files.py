@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from incipient_slip.nodes.launcher import LaunchError, find_launch_file, load
+from incipient_slip.graph.launch import LaunchError, find_launch_file, load
 
 
 def nodes(desc):
@@ -47,7 +47,7 @@ def test_replay_rig_swaps_the_simulator_for_replay():
 def test_hardware_rig_fails_clearly_until_the_device_nodes_exist():
     with pytest.raises(LaunchError, match="biotac_reader"):
         load(find_launch_file("stabilize.yaml"), {"rig": "hardware"})
-    proc = subprocess.run([sys.executable, "-m", "incipient_slip.nodes.launcher", "stabilize.yaml",
+    proc = subprocess.run([sys.executable, "-m", "incipient_slip.graph.launch", "stabilize.yaml",
                            "rig:=hardware"], capture_output=True, text=True, timeout=30)
     assert proc.returncode != 0 and "no node module incipient_slip.nodes.biotac_reader" in proc.stderr
 

@@ -19,7 +19,7 @@ from scipy import signal
 
 from incipient_slip.messages import (PAC_SAMPLES_PER_FRAME, ActuatorState, BiotacPac, BiotacSlow,
                                      ObjectPose, PztState)
-from incipient_slip.nodes.bag import BagWriter
+from incipient_slip.graph.bag import BagWriter
 
 DURATION_S = 2.0
 PAC_HZ, SLOW_HZ, MOCAP_HZ, PERIOD_S = 2200, 100, 120, 0.5

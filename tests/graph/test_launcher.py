@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from incipient_slip.nodes import bus
-from incipient_slip.nodes.launcher import LaunchError, load_text, main
+from incipient_slip.graph import discovery
+from incipient_slip.graph.launch import LaunchError, load_text, main
 
 NODES = Path(__file__).parent / "nodes"
 EXITER = NODES / "exiter.py"
@@ -133,13 +133,13 @@ def test_print_shows_resolved_graph(tmp_path, capsys):
 def _launch(graph, doc: str, *args):
     path = graph.dir / "test.yaml"
     path.write_text(textwrap.dedent(doc))
-    return graph.spawn(["python", "-m", "incipient_slip.nodes.launcher", str(path), *args])
+    return graph.spawn(["python", "-m", "incipient_slip.graph.launch", str(path), *args])
 
 
 def _wait_nodes(graph, names, timeout_s=10.0):
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        found = {i.name: i for i in bus.scan(graph.dir)}
+        found = {i.name: i for i in discovery.scan(graph.dir)}
         if set(names) <= set(found):
             return found
         time.sleep(0.02)
@@ -165,7 +165,7 @@ def test_required_node_exit_ends_launch_with_its_code(graph, code):
     _, err = proc.communicate(timeout=20)
     assert proc.returncode == code
     assert f"required node supervisor".encode() in err and f"exit code {code}".encode() in err
-    assert bus.scan(graph.dir) == []
+    assert discovery.scan(graph.dir) == []
 
 
 def test_killing_required_node_fails_launch_naming_node_and_signal(graph):

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from incipient_slip import messages as M
-from incipient_slip.nodes import bus
-from incipient_slip.nodes.params import ParamError, parse_node_argv
-from incipient_slip.nodes.runtime import Node, run_node
+from incipient_slip.graph import discovery
+from incipient_slip.graph.params import ParamError, parse_node_argv
+from incipient_slip.graph.runtime import Node, run_node
 
 NODES = Path(__file__).parent / "nodes"
 
@@ -117,17 +117,17 @@ def test_timer_fires_and_shutdown_returns_exit_code(graph):
 def test_node_announces_itself_and_withdraws_on_close(graph):
     node = Node("lonely")
     node.create_subscription(M.SlipEstimate, lambda m: None)
-    (info,) = bus.scan(graph.dir)
+    (info,) = discovery.scan(graph.dir)
     assert (info.name, info.subscribes["/slip/estimate"]) == ("lonely", "SlipEstimate")
     assert info.publishes == {"/heartbeat": "Heartbeat"}
     node.close()
-    assert bus.scan(graph.dir) == []
+    assert discovery.scan(graph.dir) == []
 
 
 def _wait_announced(graph, name, timeout_s=10.0):
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        for info in bus.scan(graph.dir):
+        for info in discovery.scan(graph.dir):
             if info.name == name and info.subscribes:
                 return info
         time.sleep(0.02)
@@ -186,7 +186,7 @@ def test_node_process_exits_0_promptly_on_signal(graph, sig):
     proc.send_signal(sig)
     assert proc.wait(timeout=5) == 0
     assert time.monotonic() - t0 < 1.5
-    assert bus.scan(graph.dir) == []
+    assert discovery.scan(graph.dir) == []
 
 
 def test_frames_of_a_publisher_that_just_exited_are_still_delivered(graph):

@@ -12,7 +12,7 @@ from incipient_slip.models.features import feature_spec, phi
 from incipient_slip.models.modelfile import Model, save_model
 from incipient_slip.nodes.rig_sim import pac_frame_stamps_ns, slow_frame_stamps_ns
 from incipient_slip.nodes.estimator import Estimator
-from incipient_slip.nodes.runtime import Node, run_node
+from incipient_slip.graph.runtime import Node, run_node
 
 PERIOD_NS = 500_000_000
 

@@ -12,7 +12,7 @@ import pytest
 from incipient_slip.messages import ActuatorState, GripCommand, Heartbeat, ObjectPose, RobotState, SlipEstimate
 from incipient_slip.models.features import feature_spec, phi
 from incipient_slip.models.modelfile import Model, save_model
-from incipient_slip.nodes.runtime import Node
+from incipient_slip.graph.runtime import Node
 from incipient_slip.sim.rig import Rig, load_scene
 
 

@@ -12,7 +12,7 @@ from incipient_slip.messages import (
     ActuatorState, BiotacPac, BiotacSlow, GripCommand, ObjectPose, PztCommand, PztState, RobotState,
 )
 from incipient_slip.nodes.rig_sim import RigSim, pac_frame_stamps_ns, slow_frame_stamps_ns
-from incipient_slip.nodes.runtime import Node, run_node
+from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.sim.dataset import simulate_series
 from incipient_slip.sim.rig import Rig, load_scene
 

@@ -33,8 +33,8 @@ from incipient_slip.messages import (
 from incipient_slip.models.estimator_core import (
     ModelFileError, StreamError, StreamingEstimator, default_model_path, load_model,
 )
-from incipient_slip.nodes.params import ParamError
-from incipient_slip.nodes.runtime import Node, run_node
+from incipient_slip.graph.params import ParamError
+from incipient_slip.graph.runtime import Node, run_node
 
 MAX_CATCH_UP = 20          # boundaries estimated at once after a hole; beyond it, resynchronize
 SEQ_GAP, STALE = "seq gap", "stale"
@@ -106,7 +106,7 @@ class Estimator(Node):
             self.core.push(msg.stamp_ns, msg.seq, counts)
         except StreamError as exc:
             self.refused += 1
-            self._warn_limited("refused", f"refused frame seq {msg.seq}: {exc}")
+            self.warn(throttle_s=1.0, key="refused", text=f"refused frame seq {msg.seq}: {exc}")
             return
         # boundaries this frame completes: it holds the last sample before B
         self.publish_until(msg.stamp_ns + 1.5 * self.sample_ns)
@@ -147,7 +147,7 @@ class Estimator(Node):
         due = int((limit_ns - self.next_end_ns) // self.period_ns) + 1
         if due > MAX_CATCH_UP:
             skipped = due - 1
-            self._warn_limited("jump", f"stamps jumped {skipped} periods ahead; resynchronizing")
+            self.warn(throttle_s=1.0, key="jump", text=f"stamps jumped {skipped} periods ahead; resynchronizing")
             self.core.reset(STALE)
             self.next_end_ns += skipped * self.period_ns
         while self.next_end_ns <= limit_ns:

@@ -16,8 +16,8 @@ import time
 
 from incipient_slip import control
 from incipient_slip.messages import METHODS, ActuatorState, GripCommand, SlipEstimate
-from incipient_slip.nodes.params import ParamError
-from incipient_slip.nodes.runtime import Node, run_node
+from incipient_slip.graph.params import ParamError
+from incipient_slip.graph.runtime import Node, run_node
 
 ROBOTS = ("sim", "ur5")
 

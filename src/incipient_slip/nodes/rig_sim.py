@@ -47,8 +47,8 @@ from incipient_slip.messages import (
     ActuatorState, BiotacPac, BiotacSlow, GripCommand, ObjectPose, PztCommand, PztState,
     RobotState,
 )
-from incipient_slip.nodes.params import ParamError
-from incipient_slip.nodes.runtime import Node, run_node
+from incipient_slip.graph.params import ParamError
+from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.sim.protocols import collection_forces_kpa
 from incipient_slip.sim.rig import PeriodOutput, Rig
 from incipient_slip.sim.scene import SceneError, load_scene
@@ -257,7 +257,7 @@ class RigSim(Node):
             return
         if msg.period != self.k - 1 or self.done:
             if msg.period != self.k - 1:          # the answer to the last period is expected
-                self._warn_limited(("grip", "period"), f"ignored GripCommand for period "
+                self.warn(throttle_s=1.0, key=("grip", "period"), text=f"ignored GripCommand for period "
                                    f"{msg.period}: waiting for period {self.k - 1}")
             return
         self.force_kpa = new_force
@@ -267,7 +267,7 @@ class RigSim(Node):
         try:
             self.rig.set_injection(msg.enabled, msg.intensity_db)
         except ValueError as exc:
-            self._warn_limited(("pzt", "bad"), f"ignored PztCommand: {exc}")
+            self.warn(throttle_s=1.0, key=("pzt", "bad"), text=f"ignored PztCommand: {exc}")
             return
         self.publish_pzt_state()
 

@@ -24,7 +24,7 @@ from incipient_slip import control
 from incipient_slip.messages import (
     BiotacSlow, GripCommand, ObjectPose, PztState, RobotState, RunEvent, SlipEstimate,
 )
-from incipient_slip.nodes.runtime import Node, run_node
+from incipient_slip.graph.runtime import Node, run_node
 
 NAN = float("nan")
 PERIOD_NS = 500_000_000

@@ -1,7 +1,7 @@
 """Test node: exits with `code` after `after_s` seconds (0: runs until signalled)."""
 import sys
 
-from incipient_slip.nodes.runtime import Node, run_node
+from incipient_slip.graph.runtime import Node, run_node
 
 
 class Exiter(Node):

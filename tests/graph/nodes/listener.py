@@ -2,7 +2,7 @@
 import sys
 
 from incipient_slip.messages import BiotacPac
-from incipient_slip.nodes.runtime import Node, run_node
+from incipient_slip.graph.runtime import Node, run_node
 
 
 class Listener(Node):

@@ -4,7 +4,7 @@ import sys
 import numpy as np
 
 from incipient_slip.messages import BiotacPac
-from incipient_slip.nodes.runtime import Node, run_node
+from incipient_slip.graph.runtime import Node, run_node
 
 
 class Talker(Node):

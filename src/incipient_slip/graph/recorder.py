@@ -1,6 +1,6 @@
 """The recorder node: writes every message it receives on its topics to an MCAP file.
 
-    python -m incipient_slip.nodes.recorder path:=run.mcap topics:='[/biotac/pac, /slip/estimate]'
+    python -m incipient_slip.graph.recorder path:=run.mcap topics:='[/biotac/pac, /slip/estimate]'
     slip bag record run.mcap /biotac/pac /slip/estimate        # the same, in the foreground
 
 `topics: []` (the default) records every topic of the graph; `max_messages` > 0 ends the
@@ -16,9 +16,9 @@ from __future__ import annotations
 import time
 
 from incipient_slip.messages import MessageError, decode_any
-from incipient_slip.nodes.bag import BagError, BagWriter
-from incipient_slip.nodes.params import ParamError
-from incipient_slip.nodes.runtime import Node, run_node
+from incipient_slip.graph.bag import BagError, BagWriter
+from incipient_slip.graph.params import ParamError
+from incipient_slip.graph.runtime import Node, run_node
 
 
 class Recorder(Node):
@@ -45,7 +45,7 @@ class Recorder(Node):
             msg = decode_any(body, topic)
         except MessageError as exc:
             self.dropped += 1
-            self._warn_limited(("rec-drop", topic), f"not recorded, malformed: {exc}")
+            self.warn(throttle_s=1.0, key=("rec-drop", topic), text=f"not recorded, malformed: {exc}")
             return
         self.bag.write(topic, msg, log_time_ns=recv_ns, body=body)
         if self.param("max_messages") and self.recorded >= self.param("max_messages"):

@@ -1,6 +1,6 @@
 """The monitor node: counts what flows on the graph and prints a summary with PASS/FAIL.
 
-    python -m incipient_slip.nodes.monitor expect_count:=648
+    python -m incipient_slip.graph.monitor expect_count:=648
 
 It listens to `topics` (all but `skip_topics` when empty), decodes every message, and per
 topic counts messages, seq gaps and messages out of order. It ends, printing the summary on
@@ -18,8 +18,8 @@ import time
 from dataclasses import dataclass
 
 from incipient_slip.messages import MessageError, decode_any
-from incipient_slip.nodes import bus
-from incipient_slip.nodes.runtime import Node, run_node
+from incipient_slip.graph import discovery
+from incipient_slip.graph.runtime import Node, run_node
 
 
 @dataclass
@@ -75,7 +75,7 @@ class Monitor(Node):
             msg = decode_any(body, topic)
         except MessageError as exc:
             self.malformed_dropped += 1
-            self._warn_limited(("mon-drop", topic), f"dropped malformed message: {exc}")
+            self.warn(throttle_s=1.0, key=("mon-drop", topic), text=f"dropped malformed message: {exc}")
             return
         stats = self.stats.get(topic)
         if stats is None:
@@ -95,7 +95,7 @@ class Monitor(Node):
         """True while some other node of the graph announces one of the topics seen."""
         # Node has no public graph directory; _dir is where this node announced itself.
         return any(set(info.publishes) & set(self.stats)
-                   for info in bus.scan(self._dir, clean=False) if info.pid != os.getpid())
+                   for info in discovery.scan(self._dir, clean=False) if info.pid != os.getpid())
 
     def check_end(self) -> None:
         now = time.monotonic()

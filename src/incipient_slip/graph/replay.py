@@ -1,6 +1,6 @@
 """The replay node: republishes a recording with its original seq, stamps and bytes.
 
-    python -m incipient_slip.nodes.replay path:=run.mcap rate:=2.0
+    python -m incipient_slip.graph.replay path:=run.mcap rate:=2.0
     slip bag play run.mcap --rate 2                 # the same, in the foreground
 
 Before the first message it waits (XPUB handshake, no sleep) until every played topic has
@@ -18,9 +18,9 @@ import time
 from pathlib import Path
 
 from incipient_slip.messages import MessageError, decode_any
-from incipient_slip.nodes.bag import BagError, bag_info, read_bag
-from incipient_slip.nodes.params import ParamError
-from incipient_slip.nodes.runtime import POLL_S, Node, run_node
+from incipient_slip.graph.bag import BagError, bag_info, read_bag
+from incipient_slip.graph.params import ParamError
+from incipient_slip.graph.runtime import POLL_S, Node, run_node
 from incipient_slip.paths import repo_root
 
 _YIELD_EVERY = 256       # at max speed, messages sent between two looks at signals and timers
@@ -108,7 +108,7 @@ class Replay(Node):
                     decode_any(rec.body, rec.topic)   # never put a malformed body on the wire
                 except MessageError as exc:
                     self.skipped += 1
-                    self._warn_limited(("replay-bad", rec.topic), f"{self.path}: skipped {exc}")
+                    self.warn(throttle_s=1.0, key=("replay-bad", rec.topic), text=f"{self.path}: skipped {exc}")
                     continue
                 self.pubs[rec.topic].publish_raw(rec.body)
                 self.published += 1

@@ -18,10 +18,10 @@ from pathlib import Path
 
 from incipient_slip.cli import fail
 from incipient_slip.messages import MessageError, decode_any, to_plain
-from incipient_slip.nodes import bus
-from incipient_slip.nodes.bag import BagError, bag_info
-from incipient_slip.nodes.params import format_value
-from incipient_slip.nodes.runtime import Node, run_node
+from incipient_slip.graph import discovery
+from incipient_slip.graph.bag import BagError, bag_info
+from incipient_slip.graph.params import format_value
+from incipient_slip.graph.runtime import Node, run_node
 
 __all__ = ["register", "TopicList", "TopicEcho", "TopicHz"]
 
@@ -56,7 +56,7 @@ class TopicList(Node):
     def report(self) -> None:
         elapsed = time.monotonic() - self.t0
         rows: dict[str, dict] = {}
-        for info in bus.scan(self._dir, clean=False):
+        for info in discovery.scan(self._dir, clean=False):
             if info.pid == os.getpid():
                 continue
             for topic, type_name in info.publishes.items():
@@ -168,7 +168,7 @@ def _node_argv(**params) -> list[str]:
 
 
 def _graph_kwargs(args) -> dict:
-    return {"graph_dir": bus.graph_dir(args.graph)} if getattr(args, "graph", None) else {}
+    return {"graph_dir": discovery.graph_dir(args.graph)} if getattr(args, "graph", None) else {}
 
 
 def _topic(text: str) -> str:
@@ -204,7 +204,7 @@ def cmd_topic_hz(args) -> int:
 
 
 def cmd_bag_record(args) -> int:
-    from incipient_slip.nodes.recorder import Recorder
+    from incipient_slip.graph.recorder import Recorder
 
     out = Path(args.out)
     if not out.parent.is_dir():
@@ -219,7 +219,7 @@ def cmd_bag_record(args) -> int:
 
 
 def cmd_bag_play(args) -> int:
-    from incipient_slip.nodes.replay import Replay, resolve_bag_path
+    from incipient_slip.graph.replay import Replay, resolve_bag_path
 
     path = resolve_bag_path(args.bag)
     info = bag_info(path)   # BagError here is a clean exit 2, before any socket exists
@@ -310,9 +310,9 @@ def register(subparsers, reproduce) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`python -m incipient_slip.nodes.tools topic|bag ...`: these commands without the rest of `slip`."""
+    """`python -m incipient_slip.graph.tools topic|bag ...`: these commands without the rest of `slip`."""
     from incipient_slip.cli import main as slip_main
-    return slip_main(argv, modules=("incipient_slip.nodes.tools",))
+    return slip_main(argv, modules=("incipient_slip.graph.tools",))
 
 
 if __name__ == "__main__":

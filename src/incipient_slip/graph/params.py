@@ -14,12 +14,50 @@ from typing import Any
 
 import yaml
 
-__all__ = ["ParamError", "NodeArgs", "parse_node_argv", "parse_value", "format_value", "coerce_param",
+__all__ = ["ParamError", "Param", "NodeArgs", "parse_node_argv", "parse_value", "format_value", "coerce_param",
            "merge_params"]
 
 
 class ParamError(ValueError):
     """A bad parameter or remap on a node's command line; names it and says what would be right."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """A parameter's declaration in a node's PARAMS: its default and the values it accepts.
+
+    `PARAMS = {"s_d": Param(0.3, lo=0.0, hi=1.0, help="target stick ratio")}`; a bare value
+    (`"rate_hz": 100.0`) is a Param with no bounds. Numbers must be finite unless
+    `finite=False`; `choices` lists the accepted values of a text or number.
+    """
+
+    default: Any
+    lo: float | None = None
+    hi: float | None = None
+    choices: tuple | None = None
+    finite: bool = True
+    help: str = ""
+
+    def check(self, node: str, name: str, value: Any) -> Any:
+        """`value` if it is inside the declaration; ParamError naming the parameter otherwise."""
+        where = f"node {node!r}: parameter {name}:={format_value(value)}"
+        if self.choices is not None and value not in self.choices:
+            raise ParamError(f"{where} is not one of {', '.join(map(str, self.choices))}")
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            if self.finite and not math.isfinite(value):
+                raise ParamError(f"{where} is not a finite number")
+            if self.lo is not None and not value >= self.lo:
+                raise ParamError(f"{where} is below its range [{self.lo}, {self.hi}]"
+                                 if self.hi is not None else f"{where} must be >= {self.lo}")
+            if self.hi is not None and not value <= self.hi:
+                raise ParamError(f"{where} is above its range [{self.lo}, {self.hi}]"
+                                 if self.lo is not None else f"{where} must be <= {self.hi}")
+        return value
+
+
+def as_param(declared: Any) -> Param:
+    """A PARAMS entry as a Param (a bare default becomes an unbounded one)."""
+    return declared if isinstance(declared, Param) else Param(declared)
 
 
 @dataclass
@@ -104,15 +142,19 @@ def coerce_param(node: str, name: str, default: Any, value: Any, raw: str | None
                      f"does not fit its default {default!r} ({type(default).__name__})")
 
 
-def merge_params(node: str, defaults: dict[str, Any], *layers: dict[str, Any],
+def merge_params(node: str, declared: dict[str, Any], *layers: dict[str, Any],
                  raw: dict[str, str] | None = None) -> dict[str, Any]:
-    """The defaults overridden by each layer in turn; ParamError names any unknown parameter."""
-    out = dict(defaults)
+    """The defaults overridden by each layer in turn, each value checked against its
+    declaration (`Param`); ParamError names any unknown or out-of-range parameter."""
+    decls = {name: as_param(d) for name, d in declared.items()}
+    out = {name: d.default for name, d in decls.items()}
     raw = raw or {}
     for layer in layers:
         for name, value in layer.items():
-            if name not in defaults:
-                known = ", ".join(sorted(defaults)) or "(none)"
+            if name not in decls:
+                known = ", ".join(sorted(decls)) or "(none)"
                 raise ParamError(f"node {node!r} has no parameter {name!r}; known: {known}")
-            out[name] = coerce_param(node, name, defaults[name], value, raw.get(name))
+            out[name] = coerce_param(node, name, decls[name].default, value, raw.get(name))
+    for name, value in out.items():
+        decls[name].check(node, name, value)
     return out

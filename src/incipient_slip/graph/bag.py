@@ -106,7 +106,7 @@ class BagWriter:
         except KeyError:
             raise BagError(self.path, f"unknown compression {compression!r} (zstd, lz4 or none)") from None
         self._writer = Writer(self._file, compression=kind)
-        self._writer.start(profile=PROFILE, library="incipient_slip.nodes.bag")
+        self._writer.start(profile=PROFILE, library="incipient_slip.graph.bag")
         self._writer.add_metadata("recording", {
             "created_by": "incipient_slip", "created_unix_ns": str(time.time_ns()),
             **{str(k): str(v) for k, v in (metadata or {}).items()}})

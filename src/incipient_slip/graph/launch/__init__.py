@@ -6,7 +6,8 @@ The file format follows ROS 2's YAML launch frontend. A top-level `launch:` list
       # which rig feeds the graph
       - arg: {name: rig, default: sim, description: "sim | replay | hardware"}
       - node:
-          exec: estimator            # incipient_slip.nodes.estimator, a dotted module, or a .py path
+          exec: estimator            # incipient_slip.nodes.estimator (pkg: graph for the tool
+                                     # processes recorder, replay, monitor), a dotted module, or a .py path
           name: estimator            # default: the exec's last part
           param: [{name: method, value: "$(var method)"}]
           remap: [{from: /biotac/pac, to: /biotac/pac_raw}]
@@ -47,8 +48,8 @@ from typing import Any
 import yaml
 
 from incipient_slip import paths
-from incipient_slip.nodes import bus
-from incipient_slip.nodes.params import format_value
+from incipient_slip.graph import discovery
+from incipient_slip.graph.params import format_value
 
 __all__ = ["LaunchError", "NodeSpec", "LaunchDescription", "load", "load_text", "find_launch_file",
            "Launcher", "main"]
@@ -442,7 +443,11 @@ def _resolve_arg(body: _MarkedDict, scope: _Scope) -> None:
     scope.descriptions[name] = str(body.get("description", ""))
 
 
-def _exec_command(exec_: str, scope: _Scope, line) -> list[str]:
+# `pkg:` of a node action -> the package its `exec:` names a module of
+NODE_PACKAGES = {"incipient_slip": "incipient_slip.nodes", "graph": "incipient_slip.graph"}
+
+
+def _exec_command(exec_: str, pkg: str, scope: _Scope, line) -> list[str]:
     if exec_.endswith(".py") or "/" in exec_:
         path = Path(exec_)
         if not path.is_absolute():
@@ -450,7 +455,7 @@ def _exec_command(exec_: str, scope: _Scope, line) -> list[str]:
         if not path.is_file():
             raise scope.error(line, "exec", f"no such node script {path}")
         return [sys.executable, str(path)]
-    module = exec_ if "." in exec_ else f"incipient_slip.nodes.{exec_}"
+    module = exec_ if "." in exec_ else f"{NODE_PACKAGES[pkg]}.{exec_}"
     if not re.fullmatch(r"[A-Za-z_][\w.]*", module):
         raise scope.error(line, "exec", f"{exec_!r} is not a module name or a .py path")
     try:
@@ -459,7 +464,8 @@ def _exec_command(exec_: str, scope: _Scope, line) -> list[str]:
         found = False
     if not found:
         raise scope.error(line, "exec", f"no node module {module} (exec is a module under "
-                          f"incipient_slip.nodes, a dotted module path, or a .py file)")
+                          f"{NODE_PACKAGES[pkg]} (pkg: {pkg}), a dotted module path, "
+                          f"or a .py file)")
     return [sys.executable, "-m", module]
 
 
@@ -471,7 +477,12 @@ def _resolve_node(body: _MarkedDict, scope: _Scope) -> NodeSpec:
     if not re.fullmatch(r"[A-Za-z_][\w.-]*", name):
         raise scope.error(lines.get("name", body.line), "name",
                           f"node name {name!r}: use letters, digits, '_', '.', '-'")
-    spec = NodeSpec(name, exec_, _exec_command(exec_, scope, lines["exec"]),
+    pkg = (scope.text(body["pkg"], lines["pkg"], "pkg") if "pkg" in body
+           else "incipient_slip")
+    if pkg not in NODE_PACKAGES:
+        raise scope.error(lines["pkg"], "pkg", f"unknown package {pkg!r} "
+                          f"(one of {', '.join(sorted(NODE_PACKAGES))})")
+    spec = NodeSpec(name, exec_, _exec_command(exec_, pkg, scope, lines["exec"]),
                     source=f"{scope.file}:{body.line}")
     for item in _list(body, "param", scope):
         if not isinstance(item, _MarkedDict) or set(item) - {"name", "value"} or "name" not in item \
@@ -583,7 +594,7 @@ class Launcher:
 
     def __init__(self, desc: LaunchDescription, grace_s: float = GRACE_S, graph_dir: Path | None = None):
         self.desc, self.grace_s = desc, grace_s
-        self.graph_dir = graph_dir or bus.graph_dir()
+        self.graph_dir = graph_dir or discovery.graph_dir()
         self.procs = [_Proc(spec) for spec in desc.nodes]
         self._lock = threading.Lock()
         self._signal: int | None = None
@@ -607,7 +618,7 @@ class Launcher:
 
     def _start(self, proc: _Proc) -> None:
         env = dict(os.environ, SLIP_LAUNCHED="1", PYTHONUNBUFFERED="1",
-                   **{bus.GRAPH_DIR_ENV: str(self.graph_dir)}, **proc.spec.env)
+                   **{discovery.GRAPH_DIR_ENV: str(self.graph_dir)}, **proc.spec.env)
         proc.popen = subprocess.Popen(proc.spec.argv(), stdin=subprocess.DEVNULL,
                                       stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
                                       preexec_fn=_child_setup)
@@ -764,7 +775,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.print_only:
         print(yaml.safe_dump(desc.to_plain(), sort_keys=False, width=120), end="")
         return 0
-    return Launcher(desc, args.grace, bus.graph_dir(args.graph) if args.graph else None).run()
+    return Launcher(desc, args.grace, discovery.graph_dir(args.graph) if args.graph else None).run()
 
 
 if __name__ == "__main__":

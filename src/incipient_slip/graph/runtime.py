@@ -15,7 +15,7 @@ A node reads like an rclpy example (see docs/design.md, "Node API"):
         return run_node(Talker, argv)
 
 Transport: each node has one XPUB (all its publishers) and one SUB (all its subscriptions),
-found through `bus` (announcement files in the graph directory, no broker). Frames are
+found through `discovery` (announcement files in the graph directory, no broker). Frames are
 `[topic + b"\\0", msgpack body]`; subscriptions are exact because the topic frame ends in NUL.
 The loop polls with at most `POLL_S` so that SIGINT/SIGTERM (which only set a flag) end
 `spin()` promptly; sockets close with a bounded linger and the exit code is 0.
@@ -35,8 +35,8 @@ from typing import Any, Callable
 import zmq
 
 from incipient_slip import messages as M
-from incipient_slip.nodes import bus
-from incipient_slip.nodes.params import ParamError, merge_params, parse_node_argv
+from incipient_slip.graph import discovery
+from incipient_slip.graph.params import ParamError, as_param, merge_params, parse_node_argv
 
 __all__ = ["Node", "Publisher", "RawPublisher", "Subscription", "RawSubscription", "Timer",
            "run_node", "POLL_S", "LINGER_MS"]
@@ -123,7 +123,7 @@ class Subscription:
         except M.MessageError as exc:
             self.dropped += 1
             node.malformed += 1
-            node._warn_limited(("drop", self.topic), f"dropped malformed message: {exc}")
+            node.warn(throttle_s=_LOG_EVERY_S, key=("drop", self.topic), text=f"dropped malformed message: {exc}")
             return
         self.received += 1
         seq = msg.seq
@@ -137,8 +137,8 @@ class Subscription:
             self.gaps += 1
             self.missed += seq - last - 1
             node.seq_gaps += 1
-            node._warn_limited(("gap", self.topic),
-                               f"seq gap on {self.topic}: {last} -> {seq} ({seq - last - 1} lost)")
+            node.warn(throttle_s=_LOG_EVERY_S, key=("gap", self.topic),
+                      text=f"seq gap on {self.topic}: {last} -> {seq} ({seq - last - 1} lost)")
             if self.on_gap is not None:
                 self._call(self.on_gap, last, seq)
         self._call(self.callback, msg)
@@ -148,8 +148,8 @@ class Subscription:
             fn(*args)
         except Exception:  # a bad message must never kill the node: log, count, go on
             self.errors += 1
-            self.node._warn_limited(("cb", self.topic),
-                                    f"callback for {self.topic} raised:\n{traceback.format_exc()}")
+            self.node.warn(throttle_s=_LOG_EVERY_S, key=("cb", self.topic),
+                           text=f"callback for {self.topic} raised:\n{traceback.format_exc()}")
 
 
 class RawSubscription(Subscription):
@@ -181,11 +181,17 @@ class Node:
 
     Keyword arguments (all optional, normally filled by `run_node` from the command line):
     `params` (overrides of PARAMS), `remaps` ({from topic: to topic}), `node_name` (overrides the
-    name given by the subclass), `graph_dir` (default: bus.graph_dir()), `raw_params` (the text
+    name given by the subclass), `graph_dir` (default: discovery.graph_dir()), `raw_params` (the text
     each command-line param came from), `heartbeat_s` (0 disables the heartbeat).
     """
 
     PARAMS: dict[str, Any] = {}
+    # The topics this node reads and writes ({topic before remaps: message type}). A node that
+    # declares them may only subscribe and publish there, and the launcher draws the graph
+    # (`launch FILE --print`) and derives start-up handshakes from them. None: undeclared
+    # (tools and tests that pick topics at run time).
+    INPUTS: dict[str, type[M.Message]] | None = None
+    OUTPUTS: dict[str, type[M.Message]] | None = None
 
     def __init__(self, name: str, *, params: dict | None = None, remaps: dict | None = None,
                  node_name: str | None = None, graph_dir=None, raw_params: dict | None = None,
@@ -208,9 +214,10 @@ class Node:
         self._pubs: dict[str, Publisher] = {}
         self._sub_counts: dict[bytes, int] = {}
         self._warned: dict[Any, list] = {}
+        self._shutdown_hooks: list[Callable[[], Any]] = []
         self._log_prefix = "" if os.environ.get("SLIP_LAUNCHED") else f"[{self.name}] "
 
-        self._dir = bus.graph_dir() if graph_dir is None else Path(graph_dir)
+        self._dir = discovery.graph_dir() if graph_dir is None else Path(graph_dir)
         self._dir.mkdir(parents=True, exist_ok=True)
         self._ctx = context or zmq.Context.instance()
         self._xpub = self._ctx.socket(zmq.XPUB)
@@ -218,19 +225,19 @@ class Node:
         self._xpub.setsockopt(zmq.XPUB_VERBOSER, 1)
         self._xpub.setsockopt(zmq.SNDHWM, HWM)
         self._xpub.setsockopt(zmq.LINGER, LINGER_MS)
-        if os.environ.get(bus.TRANSPORT_ENV, "ipc") == "tcp":
+        if os.environ.get(discovery.TRANSPORT_ENV, "ipc") == "tcp":
             port = self._xpub.bind_to_random_port("tcp://127.0.0.1")
             endpoint = f"tcp://127.0.0.1:{port}"
         else:
-            endpoint = bus.ipc_endpoint(self._dir, self.name, os.getpid())
+            endpoint = discovery.ipc_endpoint(self._dir, self.name, os.getpid())
             self._xpub.bind(endpoint)
         self._sub = self._ctx.socket(zmq.SUB)
         self._sub.setsockopt(zmq.RCVHWM, HWM)
         self._sub.setsockopt(zmq.LINGER, 0)
         self._sub_recv = self._sub.recv_multipart
         self._rcvtimeo = -1
-        self._info = bus.NodeInfo(self.name, os.getpid(), endpoint, started_ns=time.time_ns())
-        self._discovery = bus.Discovery(self._dir)
+        self._info = discovery.NodeInfo(self.name, os.getpid(), endpoint, started_ns=time.time_ns())
+        self._discovery = discovery.Discovery(self._dir)
         self._connected: set[str] = set()
         self._retiring: dict[str, float] = {}   # endpoint -> monotonic time to disconnect
         self._next_scan = 0.0
@@ -254,8 +261,18 @@ class Node:
         """The topic after this node's remaps."""
         return self.remaps.get(topic, topic)
 
+    def _check_declared(self, kind: str, declared, msg_type, topic: str) -> None:
+        """Refuses a topic or type outside the node's INPUTS/OUTPUTS (when it declares them)."""
+        if declared is None:
+            return
+        if declared.get(topic) is not msg_type:
+            have = ", ".join(f"{t} ({c.__name__})" for t, c in declared.items()) or "(none)"
+            raise TypeError(f"node {self.name!r}: {msg_type.__name__} on {topic} is not in its "
+                            f"{kind} ({have}); declare it in {type(self).__name__}.{kind}")
+
     def create_publisher(self, msg_type: type[M.Message], topic: str | None = None) -> Publisher:
         """A publisher of `msg_type` on `topic` (default msg_type.TOPIC), after remaps."""
+        self._check_declared("OUTPUTS", self.OUTPUTS, msg_type, topic or msg_type.TOPIC)
         topic = self.resolve_topic(topic or msg_type.TOPIC)
         pub = self._pubs.get(topic)
         if pub is not None:
@@ -282,6 +299,7 @@ class Node:
 
         `on_gap(last_seq, seq)` (optional) is called before the callback when seqs jump.
         """
+        self._check_declared("INPUTS", self.INPUTS, msg_type, topic or msg_type.TOPIC)
         topic = self.resolve_topic(topic or msg_type.TOPIC)
         sub = Subscription(self, msg_type, topic, callback, on_gap)
         self._subs.setdefault(topic, []).append(sub)
@@ -320,9 +338,27 @@ class Node:
         """A line on stderr (the launcher prefixes it with the node name)."""
         print(f"{self._log_prefix}{text}", file=sys.stderr, flush=True)
 
-    def warn(self, text: str) -> None:
-        """A warning line on stderr."""
+    def warn(self, text: str, throttle_s: float = 0.0, key: Any = None) -> None:
+        """A warning line on stderr; with `throttle_s`, at most one per that many seconds per
+        call site (or per `key`), the next one saying how many were suppressed meanwhile."""
+        if throttle_s > 0:
+            if key is None:
+                caller = sys._getframe(1)
+                key = (caller.f_code.co_filename, caller.f_lineno)
+            now = time.monotonic()
+            state = self._warned.get(key)
+            if state is not None and now - state[0] < throttle_s:
+                state[1] += 1
+                return
+            if state is not None and state[1]:
+                text += f" ({state[1]} similar suppressed)"
+            self._warned[key] = [now, 0]
         self.log(f"WARNING: {text}")
+
+    def on_shutdown(self, callback: Callable[[], Any]) -> None:
+        """Calls `callback()` once when the node closes (after spin ends, signal or error),
+        before its sockets close: flush files, write summaries, ramp outputs to zero."""
+        self._shutdown_hooks.append(callback)
 
     def shutdown(self, reason: str = "", exit_code: int = 0) -> None:
         """Ends `spin()`, which then returns `exit_code`."""
@@ -374,7 +410,12 @@ class Node:
         if self._closed:
             return
         self._closed = True
-        bus.withdraw(self._info)
+        for hook in self._shutdown_hooks:
+            try:
+                hook()
+            except Exception:
+                self.log(f"on_shutdown callback raised:\n{traceback.format_exc()}")
+        discovery.withdraw(self._info)
         self._sub.close(linger=0)
         self._xpub.close(linger=LINGER_MS)
 
@@ -387,7 +428,7 @@ class Node:
     # --- internals ---------------------------------------------------------------------------
 
     def _announce(self) -> None:
-        bus.announce(self._dir, self._info)
+        discovery.announce(self._dir, self._info)
 
     def _discover(self) -> None:
         self._next_scan = time.monotonic() + POLL_S
@@ -427,7 +468,7 @@ class Node:
             try:
                 M.split_frames(frames)
             except M.MessageError as exc:
-                self._warn_limited("frames", f"dropped malformed frames: {exc}")
+                self.warn(throttle_s=_LOG_EVERY_S, key="frames", text=f"dropped malformed frames: {exc}")
             return
         for sub in self._subs.get(topic, ()):
             sub._deliver(body, recv_ns)
@@ -484,22 +525,12 @@ class Node:
             try:
                 timer.callback()
             except Exception:
-                self._warn_limited(("timer", id(timer)), f"timer callback raised:\n{traceback.format_exc()}")
+                self.warn(throttle_s=_LOG_EVERY_S, key=("timer", id(timer)), text=f"timer callback raised:\n{traceback.format_exc()}")
 
     def _heartbeat(self) -> None:
         self._hb_pub.publish(M.Heartbeat(node=self.name, pid=os.getpid(),
                                          uptime_s=time.monotonic() - self._t0,
                                          malformed_dropped=self.malformed, seq_gaps=self.seq_gaps))
-
-    def _warn_limited(self, key, text: str) -> None:
-        now = time.monotonic()
-        state = self._warned.get(key)
-        if state is None or now - state[0] >= _LOG_EVERY_S:
-            suppressed = state[1] if state else 0
-            self.warn(text + (f" ({suppressed} similar suppressed)" if suppressed else ""))
-            self._warned[key] = [now, 0]
-        else:
-            state[1] += 1
 
 
 def run_node(node_class: type[Node], argv: list[str] | None = None, **kwargs) -> int:
@@ -549,5 +580,11 @@ def _usage(node_class: type[Node]) -> str:
         defaults.update(getattr(klass, "PARAMS", {}) or {})
     lines = [f"usage: python -m {node_class.__module__} [name:=value ...] [/from:=/to ...] "
              f"[__name:=node_name]", "", (node_class.__doc__ or "").strip(), "", "parameters:"]
-    lines += [f"  {k} = {v!r}" for k, v in defaults.items()] or ["  (none)"]
+    for name, declared in defaults.items():
+        d = as_param(declared)
+        bounds = (f" one of {', '.join(map(str, d.choices))}" if d.choices is not None else
+                  f" in [{d.lo}, {d.hi}]" if d.lo is not None or d.hi is not None else "")
+        lines.append(f"  {name} = {d.default!r}{bounds}" + (f"  {d.help}" if d.help else ""))
+    if not defaults:
+        lines.append("  (none)")
     return "\n".join(lines)
