@@ -120,10 +120,11 @@ class Subscription:
         node = self.node
         try:
             msg = M.decode(body, self.type, self.topic)
-        except M.MessageError as exc:
+        except Exception as exc:  # MessageError; anything else is a decoder bug, still a drop
             self.dropped += 1
             node.malformed += 1
-            node.warn(throttle_s=_LOG_EVERY_S, key=("drop", self.topic), text=f"dropped malformed message: {exc}")
+            why = exc if isinstance(exc, M.MessageError) else f"decoder raised {type(exc).__name__}: {exc}"
+            node.warn(throttle_s=_LOG_EVERY_S, key=("drop", self.topic), text=f"dropped malformed message: {why}")
             return
         self.received += 1
         seq = msg.seq

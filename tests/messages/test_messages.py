@@ -1,8 +1,6 @@
 """The wire contract as properties: every type round-trips; bad bytes only raise MessageError."""
 from __future__ import annotations
 
-import dataclasses
-
 import msgpack
 import numpy as np
 import pytest
@@ -10,27 +8,26 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from incipient_slip import messages as M
+from incipient_slip.messages.codec import _validate_fields
+from incipient_slip.messages.fields import Array, Scalar, field_specs
 
 TYPES = list(M.MESSAGE_TYPES.values())
 
 
-def _scalar(meta):
-    kind = meta["kind"]
-    if meta["choices"] is not None:
-        return st.sampled_from(meta["choices"])
-    if kind is bool:
+def _scalar(spec: Scalar):
+    if spec.choices is not None:
+        return st.sampled_from(spec.choices)
+    if spec.kind is bool:
         return st.booleans()
-    if kind is str:
+    if spec.kind is str:
         return st.text(max_size=40)
-    if kind is int:
-        low = -(1 << 63) if meta["low"] is None else meta["low"]
-        high = (1 << 64) - 1 if meta["high"] is None else meta["high"]
-        return st.integers(low, high)
-    return st.floats(meta["low"], meta["high"], allow_nan=not meta["finite"],
-                     allow_infinity=not meta["finite"] and meta["low"] is None and meta["high"] is None)
+    if spec.kind is int:
+        return st.integers(spec.low, spec.high)
+    return st.floats(spec.low, spec.high, allow_nan=not spec.finite,
+                     allow_infinity=not spec.finite and spec.low is None and spec.high is None)
 
 
-def _array(spec):
+def _array(spec: Array):
     shape = tuple(3 if n is None else n for n in spec.shape)
     dtype = np.dtype(spec.dtype)
     if dtype.kind == "f":
@@ -43,11 +40,9 @@ def _array(spec):
 
 
 def messages_of(cls):
-    """Strategy: valid messages of `cls`, every field drawn from its spec."""
-    fields = {}
-    for f in dataclasses.fields(cls):
-        fields[f.name] = _array(f.metadata["array"]) if "array" in f.metadata else _scalar(f.metadata)
-    return st.builds(cls, **fields)
+    """Strategy: valid messages of `cls`, every field drawn from its declared spec."""
+    return st.builds(cls, **{name: _array(spec) if isinstance(spec, Array) else _scalar(spec)
+                             for name, spec in field_specs(cls)})
 
 
 any_message = st.sampled_from(TYPES).flatmap(messages_of)
@@ -68,7 +63,7 @@ def test_every_type_round_trips_through_encode_and_decode(cls, data):
 def test_fast_decoder_agrees_with_full_validator(msg):
     body = M.encode(msg)
     obj = msgpack.unpackb(body, raw=False)
-    assert M._validate_fields(type(msg), obj, "/t") == M.decode(body, type(msg), "/t")
+    assert _validate_fields(type(msg), obj, "/t") == M.decode(body, type(msg), "/t")
 
 
 @settings(max_examples=60, deadline=None)

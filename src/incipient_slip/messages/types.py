@@ -1,0 +1,162 @@
+"""The message of every topic: one frozen dataclass per topic, each field with its wire kind.
+
+Field kinds (widths, units, bounds, NaN rules) are declared with the helpers of `fields`; the
+codec (`codec`) and docs/messages.md follow from these declarations.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from incipient_slip.messages.fields import Message, array, flag, integer, real, text
+
+PAC_SAMPLES_PER_FRAME = 22      # 2200 Hz P_AC in 10 ms frames
+ELECTRODE_COUNT = 19
+ADC_MAX = 4095                  # the BioTac's 12-bit ADC
+STEP_LIMIT = (1 << 32) - 1      # steps and periods are uint32 (~1.4 years at 100 ms)
+METHODS = ("injection", "vibrotactile", "e19", "e10", "e4", "e1", "none")
+RUN_EVENT_KINDS = ("start", "step", "success", "failure", "fault", "end")
+_NO_PERIOD = "-1: not tied to a period"
+
+
+@dataclass(frozen=True, eq=False)
+class BiotacPac(Message):
+    TOPIC: ClassVar[str] = "/biotac/pac"
+    DESCRIPTION: ClassVar[str] = "BioTac P_AC: 22 samples of one 10 ms frame at 2200 Hz, ADC counts"
+    pac_counts: np.ndarray = array("<i2", (PAC_SAMPLES_PER_FRAME,), unit="ADC counts")
+    pa_per_count: float = real(0.37, unit="Pa/count", low=0.0)
+
+
+@dataclass(frozen=True, eq=False)
+class BiotacSlow(Message):
+    TOPIC: ClassVar[str] = "/biotac/slow"
+    DESCRIPTION: ClassVar[str] = "BioTac slow channels at 100 Hz: P_DC, E1..E19, T_AC, T_DC (counts)"
+    electrode_counts: np.ndarray = array("<u2", (ELECTRODE_COUNT,), unit="ADC counts")
+    pdc_counts: int = integer("uint16", unit="ADC counts", high=ADC_MAX)
+    tac_counts: int = integer("uint16", unit="ADC counts", high=ADC_MAX)
+    tdc_counts: int = integer("uint16", unit="ADC counts", high=ADC_MAX)
+    pdc_pa_per_count: float = real(36.5, unit="Pa/count", low=0.0)
+    pdc_tare_counts: int = integer("uint16", unit="ADC counts", high=ADC_MAX)
+
+    @property
+    def pdc_kpa(self) -> float:
+        """P_DC above the out-of-contact tare, in kPa (the paper's F_N)."""
+        return (self.pdc_counts - self.pdc_tare_counts) * self.pdc_pa_per_count / 1000.0
+
+
+@dataclass(frozen=True, eq=False)
+class PztCommand(Message):
+    TOPIC: ClassVar[str] = "/pzt/command"
+    DESCRIPTION: ClassVar[str] = "Start/stop the PZT white-noise injection at intensity I dB"
+    enabled: bool = flag(True)
+    intensity_db: float = real(0.0, unit="dB", low=-120.0, high=20.0)
+
+
+@dataclass(frozen=True, eq=False)
+class PztState(Message):
+    TOPIC: ClassVar[str] = "/pzt/state"
+    DESCRIPTION: ClassVar[str] = "PZT injector state: on/off, intensity, band"
+    enabled: bool = flag(False)
+    intensity_db: float = real(0.0, unit="dB", low=-120.0, high=20.0)
+    band_low_hz: float = real(10.0, unit="Hz", low=0.0)
+    band_high_hz: float = real(1100.0, unit="Hz", low=0.0)
+
+
+@dataclass(frozen=True, eq=False)
+class ObjectPose(Message):
+    TOPIC: ClassVar[str] = "/object/pose"
+    DESCRIPTION: ClassVar[str] = ("Object pose from motion capture; travel along the rail is "
+                                  "position_mm[1] (the paper's y)")
+    position_mm: np.ndarray = array("<f8", (3,), unit="mm")
+    orientation_xyzw: np.ndarray = array("<f8", (4,), note="unit quaternion x, y, z, w")
+    tracking_valid: bool = flag(True)
+    body_id: int = integer("uint32", 1)
+
+    @property
+    def travel_mm(self) -> float:
+        """Object travel y along the rail, mm."""
+        return float(self.position_mm[1])
+
+
+@dataclass(frozen=True, eq=False)
+class ActuatorCommand(Message):
+    TOPIC: ClassVar[str] = "/actuator/command"
+    DESCRIPTION: ClassVar[str] = "Move the linear actuator relative by move_mm (positive pulls)"
+    move_mm: float = real(0.0, unit="mm", low=-50.0, high=50.0)
+
+
+@dataclass(frozen=True, eq=False)
+class ActuatorState(Message):
+    TOPIC: ClassVar[str] = "/actuator/state"
+    DESCRIPTION: ClassVar[str] = "Linear actuator position and step index (one step per period)"
+    position_mm: float = real(0.0, unit="mm")
+    step_index: int = integer("uint32")
+    busy: bool = flag(False)
+
+
+@dataclass(frozen=True, eq=False)
+class GripCommand(Message):
+    TOPIC: ClassVar[str] = "/grip/command"
+    DESCRIPTION: ClassVar[str] = ("Normal force target for the robot; hold=True means keep the "
+                                  "last safe force (stale/invalid estimate)")
+    normal_force_kpa: float = real(0.0, unit="kPa", low=0.0, high=100.0,
+                                   note="P_DC range; the applying node clamps to its safety limit")
+    hold: bool = flag(False)
+    period: int = integer("int64", -1, low=-1, high=STEP_LIMIT, note=_NO_PERIOD)
+    reason: str = text("")
+
+
+@dataclass(frozen=True, eq=False)
+class RobotState(Message):
+    TOPIC: ClassVar[str] = "/robot/state"
+    DESCRIPTION: ClassVar[str] = "Robot end-effector state and the normal force it applies"
+    normal_force_kpa: float = real(0.0, unit="kPa")
+    tcp_z_mm: float = real(0.0, unit="mm")
+    protective_stop: bool = flag(False)
+
+
+@dataclass(frozen=True, eq=False)
+class SlipEstimate(Message):
+    TOPIC: ClassVar[str] = "/slip/estimate"
+    DESCRIPTION: ClassVar[str] = ("Estimated stick ratio of one window; valid=False after a seq "
+                                  "gap or stale stream, with the reason")
+    stick_ratio: float = real(float("nan"), nan=True,
+                              note="NaN: no number; consumers check valid and [0, 1]")
+    valid: bool = flag(False)
+    method: str = text("injection", choices=METHODS)
+    window_end_ns: int = integer("uint64", unit="ns")
+    latency_ns: int = integer("uint64", unit="ns")
+    period: int = integer("int64", -1, low=-1, high=STEP_LIMIT, note=_NO_PERIOD)
+    reason: str = text("")
+
+
+@dataclass(frozen=True, eq=False)
+class RunEvent(Message):
+    TOPIC: ClassVar[str] = "/run/event"
+    DESCRIPTION: ClassVar[str] = "Run lifecycle: start, step, success, failure, fault, end"
+    kind: str = text("step", choices=RUN_EVENT_KINDS)
+    step: int = integer("uint32")
+    detail: str = text("")
+    object_travel_mm: float = real(float("nan"), unit="mm", nan=True, note="NaN: unknown")
+    normal_force_kpa: float = real(float("nan"), unit="kPa", nan=True, note="NaN: unknown")
+
+
+@dataclass(frozen=True, eq=False)
+class Heartbeat(Message):
+    TOPIC: ClassVar[str] = "/heartbeat"
+    DESCRIPTION: ClassVar[str] = "Node liveness with its drop and gap counters"
+    node: str = text("", max_bytes=255)
+    pid: int = integer("uint32")
+    uptime_s: float = real(0.0, unit="s", low=0.0)
+    malformed_dropped: int = integer("uint64")
+    seq_gaps: int = integer("uint64")
+
+
+MESSAGE_TYPES: dict[str, type[Message]] = {
+    cls.__name__: cls for cls in (
+        BiotacPac, BiotacSlow, PztCommand, PztState, ObjectPose, ActuatorCommand, ActuatorState,
+        GripCommand, RobotState, SlipEstimate, RunEvent, Heartbeat)
+}
+DEFAULT_TOPICS: dict[str, type[Message]] = {cls.TOPIC: cls for cls in MESSAGE_TYPES.values()}
