@@ -102,3 +102,57 @@ def test_recorder_stopped_by_signal_leaves_a_valid_file_with_every_message_recei
     assert received == wrote == len(seqs) > 0
     assert seqs == list(range(len(seqs)))           # in order, no gap, nothing after a hole
     assert len(seqs) <= sent
+
+
+@pytest.mark.timeout(60)
+def test_recorder_killed_with_sigkill_loses_at_most_its_last_flush_interval(graph, tmp_path):
+    """A real recorder process, SIGKILLed mid-stream, and `slip bag recover` on what it left.
+
+    Handshakes, no sleeps: after N frames the publisher sends one malformed frame on the same
+    topic; frames from one publisher arrive in order, so the recorder has received all N once
+    its heartbeat counts that drop (heartbeat H1). Streaming goes on; the recorder is killed
+    on its first heartbeat at least 1 s of its own uptime after H1. Its flush timer (every
+    0.5 s, due before that heartbeat) has by then put all N frames on disk: they must all be
+    recovered, as an unbroken prefix of what was sent.
+    """
+    from incipient_slip.messages import Heartbeat
+
+    out, recovered = tmp_path / "killed.mcap", tmp_path / "recovered.mcap"
+    recorder = graph.spawn(["python", "-m", "incipient_slip.graph.recorder", f"path:={out}",
+                            'topics:=["/biotac/pac"]', "flush_s:=0.5"])
+    beats: list[Heartbeat] = []
+    n = 400
+    with Node("test_publisher", heartbeat_s=0) as node:
+        pub = node.create_publisher(BiotacPac)
+        bad = node.create_raw_publisher("/biotac/pac")      # same socket: same order as pub
+        node.create_subscription(Heartbeat, lambda hb: beats.append(hb) if hb.node == "recorder" else None)
+        assert pub.wait_for_subscribers(1, timeout_s=30), "recorder never subscribed"
+        sent = 0
+
+        def stream(frames: int) -> None:
+            nonlocal sent
+            for _ in range(frames):
+                pub.publish(BiotacPac(pac_counts=np.full(22, sent % 2000, dtype=np.int16)))
+                sent += 1
+            node.spin_once(0.005)
+
+        while sent < n:
+            stream(10)
+        bad.publish_raw(b"\xc1")                             # malformed: the marker
+        while not any(hb.malformed_dropped for hb in beats):
+            assert recorder.poll() is None, recorder.stderr.read().decode()
+            stream(2)
+        marker = next(hb for hb in beats if hb.malformed_dropped)
+        while not any(hb.uptime_s >= marker.uptime_s + 1.0 for hb in beats):
+            assert recorder.poll() is None, recorder.stderr.read().decode()
+            stream(2)
+        recorder.kill()                                          # SIGKILL, mid-stream
+        recorder.wait(timeout=10)
+    assert recorder.returncode == -signal.SIGKILL
+    run = subprocess.run([sys.executable, "-m", "incipient_slip.graph.tools", "bag", "recover",
+                          str(out), str(recovered)], capture_output=True, text=True, timeout=30)
+    assert run.returncode == 0, run.stderr
+    seqs = [r.message().seq for r in read_bag(recovered)]
+    assert seqs == list(range(len(seqs)))        # an unbroken prefix of what was sent
+    assert n <= len(seqs) <= sent
+    assert f"recovered {len(seqs)} messages" in run.stdout and "UNFINISHED" in run.stdout

@@ -48,7 +48,14 @@ def _truncated(tmp_path: Path) -> Path:
 @pytest.mark.timeout(20)
 @pytest.mark.parametrize("args, says", [
     (["bag", "info", "{tmp}/missing.mcap"], "missing.mcap: no such file"),
-    (["bag", "info", "{cut}"], "cut.mcap: truncated MCAP file"),
+    (["bag", "recover", "{tmp}/missing.mcap", "{tmp}/out.mcap"], "missing.mcap: no such file"),
+    (["bag", "recover", __file__, "{tmp}/out.mcap"], "test_bag_tools.py: not an MCAP file"),
+    (["bag", "recover", "{cut}", "{cut}"], "is the input file"),
+    (["bag", "recover", "{cut}", str(DEMO)], "exists; pass --force"),
+    (["bag", "recover", "{cut}", "{tmp}/no/dir/out.mcap"], "does not exist"),
+    (["bag", "export", "{cut}", "{tmp}/out.mcap", "--foxglove"], "cut.mcap: truncated MCAP file"),
+    (["bag", "export", str(DEMO), "{tmp}/out.mcap"], "required: --foxglove"),
+    (["bag", "export", "{tmp}/missing.mcap", "{tmp}/out.mcap", "--foxglove"], "no such file"),
     (["bag", "info", __file__], "test_bag_tools.py: not an MCAP file"),
     (["bag", "play", "{cut}"], "cut.mcap: truncated MCAP file"),
     (["bag", "play", str(DEMO), "--rate", "0"], "--rate must be > 0"),
@@ -68,6 +75,29 @@ def test_bad_input_is_one_clear_line_and_exit_code_2(tmp_path, capsys, args, say
     err = capsys.readouterr().err
     assert code == 2, err
     assert says in err
+
+
+@pytest.mark.timeout(30)
+def test_bag_info_on_an_unfinished_file_says_so_and_what_is_recoverable(tmp_path, capsys):
+    cut = _truncated(tmp_path)
+    assert tools.main(["bag", "info", str(cut)]) == 0
+    out = capsys.readouterr().out
+    assert "status:    UNFINISHED" in out and "bytes at the end unreadable" in out
+    assert "0 messages (below) are recoverable" in out     # the demo is one chunk: all of it cut
+    assert tools.main(["bag", "info", str(cut), "--json"]) == 0
+    plain = json.loads(capsys.readouterr().out)
+    assert plain["damage"]["finished"] is False and plain["message_count"] == 0
+
+
+@pytest.mark.timeout(30)
+def test_bag_recover_and_export_print_what_they_did(tmp_path, capsys):
+    assert tools.main(["bag", "recover", str(DEMO), str(tmp_path / "r.mcap")]) == 0
+    out = capsys.readouterr().out
+    assert "recovered 648 messages on 5 topics" in out and "finished, nothing lost" in out
+    assert tools.main(["bag", "export", str(DEMO), str(tmp_path / "f.mcap"), "--foxglove"]) == 0
+    out = capsys.readouterr().out
+    assert "exported 848 messages on 6 JSON channels" in out     # 648 + 200 P_AC as audio
+    assert "/biotac/pac/audio: 200" in out
 
 
 @pytest.fixture

@@ -5,34 +5,47 @@
 
 `topics: []` (the default) records every topic of the graph; `max_messages` > 0 ends the
 node (exit 0) once that many are recorded. Bodies are stored exactly as
-received (after validation: a malformed message is counted and dropped, never recorded);
-log time = receive time, publish time = the message's stamp. On SIGINT/SIGTERM the file is
-finished (summary, footer, fsync) before the process exits, so it holds every message the
-node received, including those already queued to it when the signal came (drained for up
-to 1 s).
+received (after validation: a malformed message is counted in the heartbeat's
+`malformed_dropped` and dropped, never recorded); log time = receive time, publish time =
+the message's stamp. On SIGINT/SIGTERM the file is finished (summary, footer, fsync) before
+the process exits, so it holds every message the node received, including those already
+queued to it when the signal came (drained for up to 1 s).
+
+No message waits in memory longer than `flush_s` (0.5 s): the open chunk is finished,
+written and fsync'd when its oldest message is that old, and by a timer when traffic stops.
+A recorder killed with SIGKILL (or a power cut) so loses at most the last `flush_s` of
+messages; `slip bag recover` turns the unfinished file into a finished one.
 """
 from __future__ import annotations
 
 import time
 
 from incipient_slip.messages import MessageError, decode_any
-from incipient_slip.graph.bag import BagError, BagWriter
-from incipient_slip.graph.params import ParamError
+from incipient_slip.graph.bag import FLUSH_S, BagError, BagWriter
+from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
 
 
 class Recorder(Node):
     """Records topics (all when `topics` is empty) to the MCAP file `path`."""
 
-    PARAMS = {"path": "recording.mcap", "topics": [], "compression": "zstd", "max_messages": 0}
+    PARAMS = {
+        "path": Param("recording.mcap", help="the MCAP file to write (replaced if it exists)"),
+        "topics": Param([], help="topics to record; [] records every topic of the graph"),
+        "compression": Param("zstd", choices=("zstd", "lz4", "none"), help="chunk compression"),
+        "max_messages": Param(0, lo=0, help="end the node after this many (0: until stopped)"),
+        "flush_s": Param(FLUSH_S, lo=0.01, hi=60.0,
+                         help="longest a message waits in memory; a SIGKILL loses at most this"),
+    }
 
     def __init__(self, **kwargs):
         super().__init__("recorder", **kwargs)
         try:
             self.bag = BagWriter(self.param("path"), compression=self.param("compression"),
-                                 metadata={"recorder": self.name})
+                                 metadata={"recorder": self.name}, flush_s=self.param("flush_s"))
         except BagError as exc:   # run_node reports a ParamError in one line, exit code 2
             raise ParamError(f"node {self.name!r}: parameter 'path': {exc}") from None
+        self.create_timer(self.param("flush_s"), self.bag.flush)   # when traffic stops
         self.dropped = 0
         self.subs = [self.create_raw_subscription(self.on_message, topic)
                      for topic in self.param("topics") or [None]]
@@ -45,6 +58,7 @@ class Recorder(Node):
             msg = decode_any(body, topic)
         except MessageError as exc:
             self.dropped += 1
+            self.malformed += 1         # reported in this node's heartbeat
             self.warn(throttle_s=1.0, key=("rec-drop", topic), text=f"not recorded, malformed: {exc}")
             return
         self.bag.write(topic, msg, log_time_ns=recv_ns, body=body)

@@ -1,4 +1,4 @@
-"""`slip topic list|echo|hz` and `slip bag record|play|info`: look at a running graph, record it, replay it.
+"""`slip topic list|echo|hz` and `slip bag record|play|info|recover|export`: look at a running graph, record it, replay it.
 
 Each command that touches the graph runs a small node in the foreground (found through the
 same discovery as every node: $SLIP_GRAPH_DIR, $SLIP_GRAPH or --graph); Ctrl-C ends it with
@@ -19,7 +19,7 @@ from pathlib import Path
 from incipient_slip.cli import fail
 from incipient_slip.messages import MessageError, decode_any, to_plain
 from incipient_slip.graph import discovery
-from incipient_slip.graph.bag import BagError, bag_info
+from incipient_slip.graph.bag import FLUSH_S, BagError, bag_info
 from incipient_slip.graph.params import format_value
 from incipient_slip.graph.runtime import Node, run_node
 
@@ -236,8 +236,59 @@ def cmd_bag_play(args) -> int:
 
 
 def cmd_bag_info(args) -> int:
-    info = bag_info(args.bag)
+    with _bytes_bar(args.bag, "reading") as bar:
+        info = bag_info(args.bag, damaged_ok=True, progress=bar.update)
     print(json.dumps(info.to_plain(), indent=1) if args.json else info.format())
+    return 0
+
+
+def _output(path: str, src: str, force: bool) -> Path:
+    """`path` checked as a new output file next to `src` (UsageError if it cannot be one)."""
+    out = Path(path)
+    if out.is_dir():
+        raise UsageError(f"{out}: is a directory, expected a file name like out.mcap")
+    if not out.parent.is_dir():
+        raise UsageError(f"{out}: directory {out.parent} does not exist")
+    if out.exists() and Path(src).exists() and out.samefile(src):
+        raise UsageError(f"{out}: is the input file; write to another file")
+    if out.exists() and not force:
+        raise UsageError(f"{out}: exists; pass --force to replace it")
+    return out
+
+
+def _bytes_bar(path, desc: str):
+    """A tqdm progress bar over the bytes of `path` (shown only on a terminal)."""
+    from tqdm import tqdm
+
+    try:
+        total = os.path.getsize(path)
+    except OSError:
+        total = None
+    return tqdm(total=total, unit="B", unit_scale=True, desc=desc, file=sys.stderr, leave=False,
+                disable=not sys.stderr.isatty())
+
+
+def cmd_bag_recover(args) -> int:
+    from incipient_slip.graph.bag import recover
+
+    out = _output(args.out, args.bag, args.force)
+    with _bytes_bar(args.bag, "recovering") as bar:
+        result = recover(args.bag, out, progress=bar.update)
+    print(json.dumps(result.to_plain(), indent=1) if args.json else result.format())
+    return 0
+
+
+def cmd_bag_export(args) -> int:
+    from tqdm import tqdm
+
+    from incipient_slip.graph.bag_export import export_foxglove
+
+    out = _output(args.out, args.bag, args.force)
+    total = bag_info(args.bag).message_count   # BagError (exit 2) for a missing/unfinished file
+    with tqdm(total=total, unit="msg", desc="exporting", file=sys.stderr, leave=False,
+              disable=not sys.stderr.isatty()) as bar:
+        report = export_foxglove(args.bag, out, progress=bar.update)
+    print(report.format())
     return 0
 
 
@@ -246,7 +297,7 @@ def _guard(handler):
     def run(args) -> int:
         try:
             return handler(args)
-        except (UsageError, BagError, ValueError) as exc:
+        except (UsageError, BagError, ValueError, OSError) as exc:
             return fail(str(exc), where=f"slip {args.command} {getattr(args, 'tool', '')}".rstrip())
     return run
 
@@ -278,18 +329,32 @@ def register(subparsers, reproduce) -> None:
     p.add_argument("--duration", type=float, default=None, metavar="S", help="exit after S seconds")
     p.set_defaults(func=_guard(cmd_topic_hz))
 
-    bag = subparsers.add_parser("bag", help="record, play and inspect MCAP recordings")
+    bag = subparsers.add_parser(
+        "bag", help="record, play, inspect, recover and export MCAP recordings",
+        description="Recordings are MCAP files with one msgpack channel per topic, each with a "
+        "JSON schema (PlotJuggler opens them as they are; Foxglove and Lichtblick open the "
+        "output of 'slip bag export --foxglove'). See docs/tools.md.")
     bsub = bag.add_subparsers(dest="tool", metavar="TOOL", required=True)
-    p = bsub.add_parser("record", parents=[graph], help="record topics (all if none) to an MCAP "
-                        "file until Ctrl-C/SIGTERM")
-    p.add_argument("out", metavar="OUT.mcap")
-    p.add_argument("topics", nargs="*", metavar="TOPIC")
-    p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
+    p = bsub.add_parser(
+        "record", parents=[graph], help="record topics (all if none) to an MCAP file until "
+        "Ctrl-C/SIGTERM",
+        description="Records every message of TOPICs (all topics if none) as received, to "
+        "OUT.mcap, until Ctrl-C or SIGTERM (then the file is finished: summary, footer, fsync). "
+        f"Messages are on disk (fsync) at most {FLUSH_S} s after they arrive, so a recorder that "
+        "is killed (SIGKILL, power loss) loses at most that last half second: 'slip bag recover' "
+        "makes the unfinished file whole.")
+    p.add_argument("out", metavar="OUT.mcap", help="file to write (replaced if it exists)")
+    p.add_argument("topics", nargs="*", metavar="TOPIC", help="e.g. /biotac/pac (default: all)")
+    p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd",
+                   help="chunk compression (default zstd)")
     p.add_argument("--max-messages", type=int, default=0, metavar="N",
                    help="stop after N messages (default 0: until Ctrl-C/SIGTERM)")
     p.set_defaults(func=_guard(cmd_bag_record))
     p = bsub.add_parser("play", parents=[graph], help="republish a recording with its original "
-                        "seq and stamps")
+                        "seq and stamps",
+                        description="Republishes a finished recording with its original seq, "
+                        "stamps and bytes, paced by the stamps (or as fast as possible). An "
+                        "unfinished file is refused: recover it first.")
     p.add_argument("bag", metavar="IN.mcap")
     speed = p.add_mutually_exclusive_group()
     speed.add_argument("--rate", "-r", type=float, default=None, metavar="R",
@@ -303,10 +368,42 @@ def register(subparsers, reproduce) -> None:
     p.add_argument("--wait-timeout", type=float, default=3.0, metavar="S",
                    help="play anyway after S seconds of waiting (default 3)")
     p.set_defaults(func=_guard(cmd_bag_play))
-    p = bsub.add_parser("info", help="topics, types, counts, duration and rates of a recording")
+    p = bsub.add_parser(
+        "info", help="topics, types, counts, duration and rates of a recording; for a damaged "
+        "file, what is recoverable",
+        description="Prints size, duration and per topic: type, count, rate, stamp span and seq "
+        "gaps. A file that was not finished (recorder killed) or is corrupt is not refused: "
+        "'status:' says what is wrong and the counts are those 'slip bag recover' would save.")
     p.add_argument("bag", metavar="IN.mcap")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print one JSON object "
+                   "(\"damage\" is null for a finished, intact file)")
     p.set_defaults(func=_guard(cmd_bag_info))
+    p = bsub.add_parser(
+        "recover", help="turn an unfinished or damaged recording into a finished one",
+        description="Reads IN record by record (it need not have a summary or footer), keeps "
+        "every message of every complete chunk (bodies byte for byte, receive times, stamps, "
+        "seqs) and writes them to a finished OUT. Prints how many messages were recovered per "
+        "topic and what was lost: the unfinished last chunk of a killed recorder (at most its "
+        f"last {FLUSH_S} s), corrupt chunks (skipped, counted).")
+    p.add_argument("bag", metavar="IN.mcap")
+    p.add_argument("out", metavar="OUT.mcap")
+    p.add_argument("--force", "-f", action="store_true", help="replace OUT if it exists")
+    p.add_argument("--json", action="store_true", help="print the report as one JSON object")
+    p.set_defaults(func=_guard(cmd_bag_recover))
+    p = bsub.add_parser(
+        "export", help="write a copy for other viewers (--foxglove: JSON channels for "
+        "Foxglove/Lichtblick)",
+        description="Foxglove and Lichtblick do not read msgpack. --foxglove writes every topic "
+        "as a JSON channel with a jsonschema schema (arrays as lists, NaN as null, integers "
+        "beyond 2^53 as decimal strings, plus 'stamp' as {sec, nsec}), and each P_AC topic "
+        "also as <topic>/audio of type foxglove.RawAudio (pcm-s16, 2200 Hz) for the Audio panel. "
+        "Receive times, stamps and seqs are kept.")
+    p.add_argument("bag", metavar="IN.mcap", help="a finished recording (recover it first if not)")
+    p.add_argument("out", metavar="OUT.mcap")
+    p.add_argument("--foxglove", action="store_true", required=True,
+                   help="JSON + jsonschema channels and foxglove.RawAudio (the only format so far)")
+    p.add_argument("--force", "-f", action="store_true", help="replace OUT if it exists")
+    p.set_defaults(func=_guard(cmd_bag_export))
 
 
 def main(argv: list[str] | None = None) -> int:

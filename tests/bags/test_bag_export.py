@@ -1,0 +1,114 @@
+"""`slip bag export --foxglove`: read back with the mcap reader, every message valid against its schema."""
+from __future__ import annotations
+
+import base64
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+from jsonschema import Draft202012Validator
+from mcap.reader import make_reader
+
+from incipient_slip.graph.bag import BagWriter, read_bag
+from incipient_slip.graph.bag_export import (JS_SAFE_INT, PAC_RATE_HZ, RAW_AUDIO_SCHEMA,
+                                             export_foxglove, export_schema, to_export_json)
+from incipient_slip.messages import MESSAGE_TYPES, BiotacPac, Heartbeat, SlipEstimate
+
+DEMO = Path(__file__).resolve().parents[1] / "data" / "demo.mcap"
+EPOCH_NS = 1_763_900_000_123_456_789        # a wall-clock stamp: beyond 2^53
+
+
+def exported(path: Path) -> list[tuple]:
+    """(channel, schema, message, decoded JSON) of every message of an export, validated."""
+    out, validators = [], {}
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        for channel in summary.channels.values():       # every channel references a schema
+            assert channel.schema_id in summary.schemas, channel.topic
+        for schema, channel, message in reader.iter_messages(log_time_order=False):
+            assert (channel.message_encoding, schema.encoding) == ("json", "jsonschema")
+            if schema.id not in validators:
+                doc = json.loads(schema.data)
+                Draft202012Validator.check_schema(doc)
+                validators[schema.id] = Draft202012Validator(doc)
+            obj = json.loads(message.data)
+            errors = [e.message for e in validators[schema.id].iter_errors(obj)]
+            assert not errors, (channel.topic, errors)
+            out.append((channel, schema, message, obj))
+    return out
+
+
+@pytest.mark.timeout(60)
+def test_demo_export_reads_back_valid_with_every_message_and_p_ac_as_raw_audio(tmp_path):
+    out = tmp_path / "foxglove.mcap"
+    report = export_foxglove(DEMO, out)
+    got = exported(out)
+    source = list(read_bag(DEMO))
+    by_topic: dict[str, list] = {}
+    for channel, schema, message, obj in got:
+        by_topic.setdefault(channel.topic, []).append((schema.name, message, obj))
+    assert {t: len(v) for t, v in by_topic.items()} == {**{t: sum(r.topic == t for r in source)
+                                                         for t in {r.topic for r in source}},
+                                                      "/biotac/pac/audio": 200}
+    assert report.counts == {t: len(v) for t, v in by_topic.items()}
+    pac = [r for r in source if r.topic == "/biotac/pac"]
+    for rec, (name, message, obj), (aname, _, audio) in zip(pac, by_topic["/biotac/pac"],
+                                                           by_topic["/biotac/pac/audio"]):
+        msg = rec.message()
+        assert (name, aname) == ("BiotacPac", "foxglove.RawAudio")
+        assert obj["pac_counts"] == msg.pac_counts.tolist() and obj["seq"] == msg.seq
+        assert (message.log_time, message.publish_time) == (rec.log_time_ns, rec.stamp_ns)
+        samples = np.frombuffer(base64.b64decode(audio["data"]), dtype="<i2")
+        assert samples.tolist() == msg.pac_counts.tolist()
+        assert (audio["format"], audio["sample_rate"], audio["number_of_channels"]) == ("pcm-s16", 2200, 1)
+        start = audio["timestamp"]["sec"] * 10**9 + audio["timestamp"]["nsec"]
+        assert start == max(0, msg.stamp_ns - round(21e9 / PAC_RATE_HZ))   # first sample's time
+
+
+@pytest.mark.timeout(30)
+def test_wall_clock_stamps_nan_and_big_seqs_survive_exactly(tmp_path):
+    src, out = tmp_path / "src.mcap", tmp_path / "out.mcap"
+    msgs = [SlipEstimate(stick_ratio=float("nan"), stamp_ns=EPOCH_NS, seq=0),
+            SlipEstimate(stick_ratio=0.25, stamp_ns=EPOCH_NS + 1, seq=2**64 - 1),
+            Heartbeat(node="x", stamp_ns=2**64 - 1, seq=JS_SAFE_INT)]
+    with BagWriter(src) as bag:
+        for i, m in enumerate(msgs):
+            bag.write(m.TOPIC, m, log_time_ns=EPOCH_NS + i)
+    report = export_foxglove(src, out)
+    objs = [obj for *_, obj in exported(out)]
+    assert objs[0]["stamp_ns"] == str(EPOCH_NS) and objs[0]["stick_ratio"] is None
+    assert objs[0]["stamp"] == {"sec": EPOCH_NS // 10**9, "nsec": EPOCH_NS % 10**9}
+    assert objs[1]["seq"] == str(2**64 - 1) and objs[1]["stick_ratio"] == 0.25
+    assert objs[2]["stamp_ns"] == str(2**64 - 1) and objs[2]["seq"] == JS_SAFE_INT
+    assert (report.big_ints, report.non_finite) == (4, 1)
+
+
+@settings(max_examples=40, deadline=None)
+@given(stamp=st.integers(0, 2**64 - 1), seq=st.integers(0, 2**64 - 1),
+       ratio=st.one_of(st.floats(0.0, 1.0), st.just(float("nan"))))
+def test_export_json_is_valid_and_exact_for_any_stamp_and_seq(stamp, seq, ratio):
+    msg = SlipEstimate(stick_ratio=ratio, stamp_ns=stamp, seq=seq)
+    obj = json.loads(json.dumps(to_export_json(msg), allow_nan=False))
+    Draft202012Validator(export_schema(SlipEstimate)).validate(obj)
+    assert int(obj["stamp_ns"]) == stamp and int(obj["seq"]) == seq
+    assert obj["stamp"]["sec"] * 10**9 + obj["stamp"]["nsec"] == stamp
+
+
+@pytest.mark.parametrize("name", sorted(MESSAGE_TYPES))
+def test_every_export_schema_is_a_valid_json_schema_that_accepts_the_default_message(name):
+    msg_type = MESSAGE_TYPES[name]
+    arrays = {f: np.zeros([n or 3 for n in spec["shape"]], dtype=spec["array"])
+              for f, spec in msg_type.schema()["fields"].items() if "array" in spec}
+    msg = msg_type(**arrays, stamp_ns=EPOCH_NS, seq=1)
+    Draft202012Validator.check_schema(export_schema(msg_type))
+    Draft202012Validator(export_schema(msg_type)).validate(json.loads(json.dumps(to_export_json(msg))))
+
+
+def test_raw_audio_schema_has_foxgloves_fields():
+    assert set(RAW_AUDIO_SCHEMA["required"]) == {"timestamp", "data", "format", "sample_rate",
+                                                 "number_of_channels"}
+    assert RAW_AUDIO_SCHEMA["properties"]["data"]["contentEncoding"] == "base64"
+    assert BiotacPac.schema()["fields"]["pac_counts"]["array"] == "<i2"    # pcm-s16 as it is
