@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench bench-graph bench-sim bench-estimator bench-loop clean
+.PHONY: demo test bench bench-graph bench-bag bench-sim bench-estimator bench-loop clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -28,10 +28,13 @@ clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis
 
 # Benchmarks print ratios measured side by side in one run; results go to docs/performance.md.
-bench: bench-graph bench-sim bench-estimator bench-loop
+bench: bench-graph bench-bag bench-sim bench-estimator bench-loop
 
 bench-graph: $(STAMP)
 	$(BIN)/python bench/bench_graph.py
+
+bench-bag: $(STAMP)
+	$(BIN)/python bench/bench_bag.py --dir .
 
 bench-sim: $(STAMP)
 	$(BIN)/python bench/bench_sim.py

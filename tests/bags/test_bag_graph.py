@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
 from incipient_slip.messages import BiotacPac
 from incipient_slip.graph.bag import bag_info, read_bag
@@ -61,6 +62,11 @@ def test_record_play_record_gives_identical_content(graph, tmp_path):
         assert run.returncode == 0, run.stdout + run.stderr
     assert len(content(first)) == count
     assert content(second) == content(first) == content(DEMO)
+    for path in (first, second):        # PlotJuggler needs a schema record behind every channel
+        with open(path, "rb") as f:
+            summary = make_reader(f).get_summary()
+        assert summary.channels and all(c.schema_id in summary.schemas and c.schema_id != 0
+                                        for c in summary.channels.values())
 
 
 def publish_until(proc: subprocess.Popen, pub, node: Node, first: int, then: int) -> int:
