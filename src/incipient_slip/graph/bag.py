@@ -522,9 +522,13 @@ class Recovery:
         if self.malformed:
             lines.append(f"left out: {self.malformed} malformed message bodies")
         if self.last_log_ns:
-            lines.append(f"last recovered message received at "
+            lines.append(f"last:      the last recovered message was received at "
                          f"{time.strftime('%Y-%m-%d %H:%M:%S', time.localtime(self.last_log_ns / 1e9))}"
                          f".{self.last_log_ns % 10**9:09d}")
+        if not self.damage.finished:
+            lines.append(f"lost:      what the writer received after that and had not yet put on "
+                         f"disk (a recorder killed with SIGKILL: at most its flush_s, {FLUSH_S} s "
+                         f"by default)")
         lines += [f"  {topic}: {n}" for topic, n in sorted(self.counts.items())]
         return "\n".join(lines)
 
