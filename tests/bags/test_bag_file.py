@@ -117,7 +117,7 @@ def test_corrupt_chunk_is_an_error_naming_the_file(tmp_path):
 
 @pytest.mark.timeout(10)
 @pytest.mark.parametrize("content, reason", [(b"not an mcap at all", "not an MCAP file"),
-                                              (b"", "not an MCAP file")])
+                                              (b"", r"is empty \(0 bytes\)")])
 def test_non_mcap_file_is_an_error_naming_it(tmp_path, content, reason):
     path = tmp_path / "x.mcap"
     path.write_bytes(content)

@@ -115,7 +115,7 @@ def test_a_cut_anywhere_recovers_exactly_the_chunks_before_it(chunked, tmp_path,
     out = tmp_path / "out.mcap"
     out.unlink(missing_ok=True)     # tmp_path is shared by the examples
     if cut_at < 8:
-        with pytest.raises(BagError, match="not an MCAP file"):
+        with pytest.raises(BagError, match="not an MCAP file|is empty"):
             recover(cut, out)
         assert not out.exists()
         return

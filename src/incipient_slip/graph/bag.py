@@ -263,7 +263,11 @@ def _corrupt(path, exc: BaseException) -> BagError:
 
 
 def _check_magic(path, f) -> None:
-    if f.read(len(_MAGIC)) != _MAGIC:
+    head = f.read(len(_MAGIC))
+    if not head:
+        raise BagError(path, "is empty (0 bytes): nothing was ever written to it (a writer "
+                             "killed before its first flush leaves this)")
+    if head != _MAGIC:
         raise BagError(path, "not an MCAP file (it does not start with the MCAP magic bytes)")
 
 
