@@ -33,6 +33,14 @@ def launch(graph, file: str, timeout: float = 40.0, **args) -> subprocess.Comple
     return subprocess.CompletedProcess(argv, proc.returncode, out.decode(), err.decode())
 
 
+def assert_every_channel_has_a_schema(path: Path) -> None:
+    """PlotJuggler refuses a channel without a schema record."""
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary.channels and all(c.schema_id != 0 and c.schema_id in summary.schemas
+                                    for c in summary.channels.values())
+
+
 def content(path: Path) -> list[tuple]:
     """What a recording says, minus receive times: (topic, type, body, stamp, seq) in order."""
     return [(r.topic, r.type_name, r.body, r.stamp_ns, r.sequence) for r in read_bag(path)]
@@ -62,11 +70,8 @@ def test_record_play_record_gives_identical_content(graph, tmp_path):
         assert run.returncode == 0, run.stdout + run.stderr
     assert len(content(first)) == count
     assert content(second) == content(first) == content(DEMO)
-    for path in (first, second):        # PlotJuggler needs a schema record behind every channel
-        with open(path, "rb") as f:
-            summary = make_reader(f).get_summary()
-        assert summary.channels and all(c.schema_id in summary.schemas and c.schema_id != 0
-                                        for c in summary.channels.values())
+    for path in (first, second):
+        assert_every_channel_has_a_schema(path)
 
 
 def publish_until(proc: subprocess.Popen, pub, node: Node, first: int, then: int) -> int:
@@ -108,6 +113,7 @@ def test_recorder_stopped_by_signal_leaves_a_valid_file_with_every_message_recei
     assert received == wrote == len(seqs) > 0
     assert seqs == list(range(len(seqs)))           # in order, no gap, nothing after a hole
     assert len(seqs) <= sent
+    assert_every_channel_has_a_schema(out)
 
 
 @pytest.mark.timeout(60)
@@ -162,3 +168,4 @@ def test_recorder_killed_with_sigkill_loses_at_most_its_last_flush_interval(grap
     assert seqs == list(range(len(seqs)))        # an unbroken prefix of what was sent
     assert n <= len(seqs) <= sent
     assert f"recovered {len(seqs)} messages" in run.stdout and "UNFINISHED" in run.stdout
+    assert_every_channel_has_a_schema(recovered)
