@@ -146,6 +146,22 @@ def test_a_corrupt_chunk_is_skipped_and_counted_and_later_chunks_are_kept(chunke
 
 
 @pytest.mark.timeout(20)
+def test_a_finished_file_with_a_broken_summary_is_read_by_its_chunks(chunked, tmp_path):
+    path, ends = chunked
+    data = bytearray(path.read_bytes())
+    data[-40:-8] = b"\xff" * 32            # the footer's summary offsets; chunks intact
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(BagError):
+        bag_info(bad)
+    info = bag_info(bad, damaged_ok=True)
+    assert info.message_count == bag_info(path).message_count
+    assert not info.damage.intact and "summary/index is unusable" in info.damage.describe()
+    recover(bad, tmp_path / "out.mcap")
+    assert pac_seqs(tmp_path / "out.mcap") == list(range(6 * CHUNK))
+
+
+@pytest.mark.timeout(20)
 def test_a_finished_file_recovers_whole_and_info_reports_no_damage(chunked, tmp_path):
     path, _ = chunked
     result = recover(path, tmp_path / "copy.mcap")

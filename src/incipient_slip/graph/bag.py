@@ -343,6 +343,7 @@ class Damage:
     bad_records: int = 0                # other complete records that do not parse: skipped
     orphans: int = 0                    # messages whose channel record was lost with a bad chunk
     stopped: str = ""                   # why the scan ended before the end of the file, if it did
+    summary_error: str = ""             # why the summary/index of a finished file is unusable
 
     @property
     def lost_bytes(self) -> int:
@@ -352,7 +353,8 @@ class Damage:
     @property
     def intact(self) -> bool:
         """True when the file is finished and nothing in it had to be skipped."""
-        return self.finished and not (self.bad_chunks or self.bad_records or self.orphans)
+        return self.finished and not (self.bad_chunks or self.bad_records or self.orphans
+                                      or self.summary_error)
 
     def describe(self) -> str:
         """One line: finished or not, and what could not be read."""
@@ -368,13 +370,16 @@ class Damage:
             parts.append(f"{self.bad_records} corrupt record(s) skipped")
         if self.orphans:
             parts.append(f"{self.orphans} message(s) without a channel record skipped")
+        if self.summary_error and self.finished and len(parts) == 1:
+            parts.append(f"its summary/index is unusable ({self.summary_error})")
         return "; ".join(parts)
 
     def to_plain(self) -> dict:
         return {"finished": self.finished, "intact": self.intact, "size_bytes": self.size_bytes,
                 "readable_bytes": self.readable_bytes, "lost_bytes": self.lost_bytes,
                 "chunks": self.chunks, "bad_chunks": self.bad_chunks,
-                "bad_records": self.bad_records, "orphans": self.orphans, "stopped": self.stopped}
+                "bad_records": self.bad_records, "orphans": self.orphans, "stopped": self.stopped,
+                "summary_error": self.summary_error}
 
 
 _HEADER_BYTES = 9   # opcode u8 + length u64
@@ -654,10 +659,11 @@ def bag_info(path: str | os.PathLike, *, damaged_ok: bool = False,
     path = os.fspath(path)
     try:
         return _finished_info(path)
-    except BagError:
+    except BagError as exc:
         if not damaged_ok:
             raise
-    damage = Damage(0)
+        refused = exc.reason
+    damage = Damage(0, summary_error=refused)
     topics: dict[str, TopicInfo] = {}
     profile = ""
     for rec in scan_bag(path, damage, progress):
