@@ -5,7 +5,9 @@ Writes the same traffic with two policies, alternating runs so that machine nois
 * old: mcap's default, 1 MiB chunks, no fsync until the file is closed (a SIGKILL loses
   everything since the last full chunk);
 * new: the recorder's policy, a chunk finished, written and fsync'd every FLUSH_S of traffic
-  (BagWriter.flush(), as the recorder's timer and write() call it).
+  (BagWriter.flush(), as the recorder's timer and write() call it);
+* chunks: the same small chunks without the fsync (os.fsync patched out), to split the cost
+  between smaller chunks and the disk sync.
 
 Traffic: the shipped demo recording (tests/data/demo.mcap, the simulated rig's topic mix:
 P_AC and slow BioTac frames at 100 Hz, mocap at 120 Hz, ...), repeated to SECONDS s with
@@ -17,12 +19,14 @@ over side-by-side pairs.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import statistics
 import sys
 import tempfile
 import time
 from pathlib import Path
+from unittest import mock
 
 from incipient_slip.graph.bag import FLUSH_S, BagWriter, read_bag
 
@@ -41,7 +45,7 @@ def traffic(seconds: int) -> list:
 
 
 def write(path: str, rows: list, flush_every_s: float | None) -> tuple[float, int, int]:
-    """Seconds to write and close `rows`; file size; flushes. None: mcap's default policy."""
+    """Seconds to write and close `rows`; file size; chunk flushes. None: mcap's policy."""
     t0 = time.perf_counter()
     bag = BagWriter(path, flush_s=None if flush_every_s is None else 1e9)
     next_flush = rows[0][3] + (flush_every_s or 0) * 1e9
@@ -64,27 +68,30 @@ def main(argv=None) -> int:
     n = len(rows)
     print(f"traffic: {n} messages = {args.seconds} s of the demo mix ({n / args.seconds:.0f} msg/s); "
           f"simulated-rig topics")
-    times: dict[str, list[float]] = {"old": [], "new": []}
+    policies = (("old", None, False), ("new", FLUSH_S, False), ("chunks", FLUSH_S, True))
+    times: dict[str, list[float]] = {name: [] for name, *_ in policies}
     sizes, flushes = {}, {}
     with tempfile.TemporaryDirectory(dir=args.dir) as tmp:
         path = os.path.join(tmp, "bench.mcap")
         for _ in range(args.repeats):
-            for name, every in (("old", None), ("new", FLUSH_S)):
-                seconds, sizes[name], flushes[name] = write(path, rows, every)
+            for name, every, no_fsync in policies:
+                with mock.patch("os.fsync") if no_fsync else contextlib.nullcontext():
+                    seconds, sizes[name], flushes[name] = write(path, rows, every)
                 times[name].append(seconds)
-    for name in ("old", "new"):
+    for name, *_ in policies:
         t = times[name]
         med = statistics.median(t)
         print(f"{name}: write+close {med * 1e3:7.1f} ms median (min {min(t) * 1e3:.1f}, max "
               f"{max(t) * 1e3:.1f}) = {n / med:,.0f} msg/s, {med / args.seconds * 1e3:.2f} ms per "
-              f"recorded second; file {sizes[name] / 1024:.0f} KiB; {flushes[name]} fsyncs")
+              f"recorded second; file {sizes[name] / 1024:.0f} KiB; {flushes[name]} flushes")
     per_s = sum(31 + len(r[2]) for r in rows) / args.seconds   # MCAP message record bytes
     print(f"what a SIGKILL can lose: old = one 1 MiB chunk = {(1 << 20) / per_s:.0f} s of this "
           f"traffic; new = {FLUSH_S} s")
-    pairs = sorted(new / old for old, new in zip(times["old"], times["new"]))   # run side by side
     print(f"file size ratio new/old = {sizes['new'] / sizes['old']:.2f}")
-    print(f"new/old write time ratio = {statistics.median(pairs):.2f} (median of {len(pairs)} "
-          f"side-by-side pairs; min {pairs[0]:.2f}, max {pairs[-1]:.2f})")
+    for name in ("chunks", "new"):
+        pairs = sorted(t / old for old, t in zip(times["old"], times[name]))   # run side by side
+        print(f"{name}/old write time ratio = {statistics.median(pairs):.2f} (median of "
+              f"{len(pairs)} side-by-side runs; min {pairs[0]:.2f}, max {pairs[-1]:.2f})")
     return 0
 
 

@@ -198,3 +198,27 @@ def test_recover_refuses_to_overwrite_its_source(chunked):
 def test_damage_of_a_finished_file_is_intact():
     assert Damage(100, readable_bytes=100, finished=True).intact
     assert not Damage(100, readable_bytes=100, finished=True, orphans=1).intact
+
+
+@pytest.mark.timeout(120)
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_any_corruption_is_recovered_around_or_named_never_a_crash(chunked, tmp_path, data):
+    path, _ = chunked
+    raw = bytearray(path.read_bytes())
+    for _ in range(data.draw(st.integers(1, 8))):
+        at = data.draw(st.integers(0, len(raw) - 1))
+        raw[at] = data.draw(st.integers(0, 255))
+    bad = tmp_path / "fuzz.mcap"
+    bad.write_bytes(bytes(raw[:data.draw(st.integers(0, len(raw)))]))
+    out = tmp_path / "out.mcap"
+    out.unlink(missing_ok=True)
+    try:
+        result = recover(bad, out)
+    except BagError:
+        assert not out.exists()
+        return
+    seqs = pac_seqs(out)                                  # the output is a finished, valid file
+    assert len(seqs) == result.counts.get("/biotac/pac", 0)
+    assert seqs == sorted(set(seqs)) and set(seqs) <= set(range(6 * CHUNK))   # nothing invented
+    assert bag_info(bad, damaged_ok=True).message_count >= result.message_count
