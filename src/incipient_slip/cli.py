@@ -1,8 +1,8 @@
 """The `slip` command: one entry point whose sub-commands live beside the code they drive.
 
-Each area module exposes `register(subparsers, reproduce)`: `subparsers` takes top-level
-commands, `reproduce` takes the experiments of `slip reproduce NAME`. This file only lists the
-modules, so adding a command never means editing another area's code.
+Each area module exposes `register(subparsers)`; this file only lists the modules, so adding a
+command never means editing another area's code. A handler returns an exit code or raises
+`UsageError`, which `main` prints as one line on stderr (exit 2, no traceback).
 """
 from __future__ import annotations
 
@@ -11,34 +11,35 @@ import importlib
 import signal
 import sys
 
-# each module defines register(subparsers, reproduce) -> None
+from incipient_slip.errors import EXIT_INTERRUPTED, EXIT_USAGE, UsageError
+
+# each module defines register(subparsers) -> None
 COMMAND_MODULES = (
-    "incipient_slip.graph.tools",       # topic list|echo|hz, bag record|play|info
-    "incipient_slip.sim.cli",           # dataset, sim calibrate
-    "incipient_slip.models.cli",        # train, evaluate, reproduce estimation, model regen
-    "incipient_slip.control_cli",       # reproduce stabilization
+    "incipient_slip.graph.tools",        # topic list|echo|hz, bag record|play|info
+    "incipient_slip.sim.cli",            # dataset
+    "incipient_slip.models.cli",         # train, evaluate
+    "incipient_slip.experiments.cli",    # reproduce NAME|--list
 )
 
 
-def fail(msg: str, where: str = "slip") -> int:
-    """Reports bad user input as one line on stderr (no traceback); returns exit code 2."""
-    print(f"{where}: error: {msg}", file=sys.stderr)
-    return 2
-
-
 def build_parser(modules: tuple[str, ...] = COMMAND_MODULES) -> argparse.ArgumentParser:
+    """Return the `slip` parser with the commands of `modules`."""
     parser = argparse.ArgumentParser(
         prog="slip",
         description="Incipient slip detection by vibration injection: tools for the node graph, "
         "the simulated rig, the slip models and the paper's experiments.",
     )
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    reproduce = subparsers.add_parser(
-        "reproduce", help="run one of the paper's experiments end to end and write docs/"
-    ).add_subparsers(dest="experiment", metavar="EXPERIMENT", required=True)
     for module_name in modules:
-        importlib.import_module(module_name).register(subparsers, reproduce)
+        importlib.import_module(module_name).register(subparsers)
     return parser
+
+
+def _where(args: argparse.Namespace) -> str:
+    """Return the command line's command words, e.g. 'slip reproduce stabilization'."""
+    words = [args.command] + [getattr(args, a) for a in ("tool", "experiment")
+                              if isinstance(getattr(args, a, None), str)]
+    return " ".join(["slip", *words])
 
 
 def main(argv: list[str] | None = None, modules: tuple[str, ...] = COMMAND_MODULES) -> int:
@@ -48,8 +49,11 @@ def main(argv: list[str] | None = None, modules: tuple[str, ...] = COMMAND_MODUL
     args = build_parser(modules).parse_args(argv)
     try:
         return int(args.func(args) or 0)
+    except UsageError as exc:
+        print(f"{_where(args)}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     except KeyboardInterrupt:
-        return 130
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

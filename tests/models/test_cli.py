@@ -1,19 +1,12 @@
-import argparse
 import json
 
-import numpy as np
 import pytest
 
-from incipient_slip.models import cli
+from incipient_slip.cli import main
 
 
 def run(argv):
-    parser = argparse.ArgumentParser(prog="slip")
-    sub = parser.add_subparsers(dest="command", required=True)
-    rep = sub.add_parser("reproduce").add_subparsers(dest="experiment", required=True)
-    cli.register(sub, rep)
-    args = parser.parse_args(argv)
-    return args.func(args)
+    return main(argv, modules=("incipient_slip.models.cli",))
 
 
 def test_train_writes_a_model_file_and_reports_held_out_rmse(fake_injection_dir, tmp_path, capsys):
@@ -56,39 +49,9 @@ def test_unknown_method_is_refused_by_the_parser(capsys):
     assert "invalid choice: 'e7'" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("argv", [["train", "--help"], ["evaluate", "--help"], ["model", "regen", "--help"],
-                                  ["reproduce", "estimation", "--help"]])
+@pytest.mark.parametrize("argv", [["train", "--help"], ["evaluate", "--help"]])
 def test_help_explains_each_command(argv, capsys):
     with pytest.raises(SystemExit) as exc:
         run(argv)
     assert exc.value.code == 0
     assert len(capsys.readouterr().out) > 200
-
-
-def test_reproduce_estimation_quick_runs_on_the_simulated_rig(tmp_path):
-    pytest.importorskip("incipient_slip.sim.dataset")
-    assert run(["reproduce", "estimation", "--quick", "--out", str(tmp_path)]) == 0
-    meta = json.loads(next((tmp_path / "data").glob("paper_*/meta.json")).read_text())
-    assert meta["scene"] == "paper" and meta["created_by"].startswith("incipient_slip.sim")
-    results = json.loads((tmp_path / "results.json").read_text())
-    assert [r["method"] for r in results["table"]] == ["injection", "vibrotactile", "e19", "e10", "e4", "e1"]
-    assert all(np.isfinite(r["rmse_mean"]) and np.isfinite(r["top10_mean"]) for r in results["table"])
-    md = (tmp_path / "estimation.md").read_text()
-    assert md.count("*Simulated rig.*") >= 4
-    assert len(list((tmp_path / "figures").glob("est_*.png"))) >= 5
-
-
-def test_cached_data_set_from_other_physics_is_regenerated(tmp_path):
-    """A data set cached before the simulator changed must not be reused."""
-    import json
-    from incipient_slip.models.pipeline import ensure_dataset
-    out = tmp_path / "mech"
-    ensure_dataset("mechanics", 2, 0, out, workers=1, steps=4, progress=False)
-    meta = json.loads((out / "meta.json").read_text())
-    first = (out / "series_00000.npz").stat().st_mtime_ns
-    assert ensure_dataset("mechanics", 2, 0, out, workers=1, steps=4, progress=False) == out
-    assert (out / "series_00000.npz").stat().st_mtime_ns == first   # reused while physics is the same
-    meta["physics_fingerprint"] = "older-physics"
-    (out / "meta.json").write_text(json.dumps(meta))
-    ensure_dataset("mechanics", 2, 0, out, workers=1, steps=4, progress=False)
-    assert json.loads((out / "meta.json").read_text())["physics_fingerprint"] != "older-physics"

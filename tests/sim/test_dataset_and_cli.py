@@ -1,11 +1,11 @@
 """Data sets on disk (docs/design.md format), independence of worker count, and the CLI contract."""
-import argparse
 import json
 
 import numpy as np
 import pytest
 
-from incipient_slip.sim import cli, load_scene
+from incipient_slip.cli import main
+from incipient_slip.sim import load_scene
 from incipient_slip.sim.dataset import write_dataset
 from incipient_slip.sim.protocols import COLLECTION_FORCES_KPA, collection_forces_kpa
 
@@ -47,10 +47,7 @@ def test_collection_redraws_force_each_period_from_the_paper_grid():
 
 
 def _run(argv):
-    parser = argparse.ArgumentParser(prog="slip")
-    cli.register(parser.add_subparsers(dest="command", required=True), None)
-    args = parser.parse_args(argv)
-    return args.func(args)
+    return main(argv, modules=("incipient_slip.sim.cli",))
 
 
 @pytest.mark.parametrize("argv, needle", [
@@ -58,7 +55,6 @@ def _run(argv):
     (["dataset", "--scene", "paper", "--series", "0", "--out", "X"], "--series must be >= 1"),
     (["dataset", "--scene", "paper", "--series", "1", "--out", "X", "--materials", "wood"], "unknown material(s) wood"),
     (["dataset", "--scene", "paper", "--series", "1", "--out", "X", "--workers", "0"], "--workers must be >= 1"),
-    (["sim", "calibrate", "--scene", "mechanics"], "no 'injection' effect"),
 ])
 def test_bad_cli_input_exits_2_with_a_named_error(argv, needle, tmp_path, capsys):
     argv = [str(tmp_path / "out") if a == "X" else a for a in argv]
@@ -90,12 +86,3 @@ def test_dataset_series_equals_a_plain_step_period_loop():
     assert np.array_equal(data["pac_counts"], np.concatenate([o.pac_counts for o in outs]))
     assert np.array_equal(data["electrode_counts"], np.concatenate([o.electrode_counts for o in outs]))
     assert np.array_equal(data["object_y_mm"], [o.object_y_mm for o in outs])
-
-
-def test_calibrate_writes_report_and_labelled_figures(tmp_path):
-    out = tmp_path / "docs" / "simulator.md"
-    assert _run(["sim", "calibrate", "--scene", "paper", "--series", "1", "--out", str(out)]) == 0
-    text = out.read_text()
-    assert "| quantity | paper | simulated rig |" in text and "1.5 +/- 0.4 mm" in text
-    figs = sorted((tmp_path / "docs" / "figures").glob("sim_*.png"))
-    assert len(figs) == 4 and all(f"Simulated rig, not a measurement: `{f.name}`" in text for f in figs)

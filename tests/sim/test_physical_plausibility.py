@@ -14,7 +14,7 @@ import pytest
 from incipient_slip.control import SAFETY_LIMIT_KPA
 from incipient_slip.sim import Rig, load_scene
 from incipient_slip.sim import contact, partial_slip
-from incipient_slip.sim.calibrate import oracle_hold
+from incipient_slip.experiments.calibration import oracle_hold
 from incipient_slip.sim.scene import scene_from_dict
 
 

@@ -16,7 +16,7 @@ import time
 from collections import deque
 from pathlib import Path
 
-from incipient_slip.cli import fail
+from incipient_slip.errors import UsageError
 from incipient_slip.messages import MessageError, decode_any, to_plain
 from incipient_slip.graph import discovery
 from incipient_slip.graph.bag import FLUSH_S, BagError, bag_info
@@ -24,10 +24,6 @@ from incipient_slip.graph.params import format_value
 from incipient_slip.graph.runtime import Node, run_node
 
 __all__ = ["register", "TopicList", "TopicEcho", "TopicHz"]
-
-
-class UsageError(Exception):
-    """Bad command-line input: printed as one line, exit code 2."""
 
 
 # --- the tool nodes --------------------------------------------------------------------------
@@ -297,14 +293,14 @@ def _guard(handler):
     def run(args) -> int:
         try:
             return handler(args)
-        except (UsageError, BagError, ValueError, OSError) as exc:
-            return fail(str(exc), where=f"slip {args.command} {getattr(args, 'tool', '')}".rstrip())
+        except (BagError, ValueError, OSError) as exc:
+            raise UsageError(str(exc)) from exc
     return run
 
 
 # --- registration ----------------------------------------------------------------------------
 
-def register(subparsers, reproduce) -> None:
+def register(subparsers) -> None:
     """Adds `slip topic ...` and `slip bag ...` to the `slip` command."""
     graph = argparse.ArgumentParser(add_help=False)
     graph.add_argument("--graph", metavar="NAME", help="graph name (default $SLIP_GRAPH or "

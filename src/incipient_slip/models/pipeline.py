@@ -1,15 +1,12 @@
-"""The estimation study end to end: data sets -> six models -> held-out evaluation -> results.
+"""Six models trained and scored on one shared set of held-out series: the study's core.
 
-Used by `slip reproduce estimation`, `slip model regen` and the end-to-end test. Data comes
-from the simulated rig in-process (`incipient_slip.sim.dataset.write_dataset`); a directory
-that already holds the requested data set (same scene, seed and series count) is reused.
+Used by the estimation and model-regeneration experiments. It reads data-set directories (the
+format of docs/design.md) and never the simulator: the experiments make the data sets.
 """
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
@@ -21,30 +18,6 @@ from .modelfile import Model
 from .training import WindowSet, held_out_series, load_windows, split_train_test, train_model
 
 SCENE_OF_METHOD = {m: ("no_injection" if m == "vibrotactile" else "paper") for m in METHODS}
-
-
-def ensure_dataset(scene: str, n_series: int, seed: int, out_dir: Path, workers: int = 2,
-                   steps: int = 450, progress: bool = True) -> Path:
-    """Return a data set directory for (scene, n_series, seed), simulating it if needed."""
-    from ..sim.dataset import physics_fingerprint, write_dataset
-    from ..sim.scene import load_scene
-    out_dir = Path(out_dir)
-    scene_obj = load_scene(scene)
-    try:
-        meta = ds.read_meta(out_dir)
-        # Reuse only data made by the same physics: a recalibrated simulator must not be
-        # evaluated on the old one's data.
-        if (meta.get("scene") == scene and meta.get("seed") == seed and meta.get("n_series") == n_series
-                and meta.get("steps") == steps and len(ds.series_paths(out_dir)) == n_series
-                and meta.get("physics_fingerprint") == physics_fingerprint(scene_obj)):
-            return out_dir
-    except ds.DatasetError:
-        pass
-    for stale in out_dir.glob("series_*.npz"):   # from other physics or an interrupted run
-        stale.unlink()
-    write_dataset(scene_obj, n_series, seed, out_dir, workers=workers, steps=steps,
-                  progress=progress)
-    return out_dir
 
 
 @dataclass
@@ -135,9 +108,3 @@ def run_study(data_dirs: dict, methods=METHODS, kind: str = "svr", quick: bool =
     return StudyResult(results, paired_tests(scores, ref_m, "rmse"),
                        paired_tests(scores, ref_m, "top10_rmse"),
                        [int(v) for v in test_series], dict(data_dirs), timings)
-
-
-def save_results(study: StudyResult, path: Path) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(study.to_json(), indent=1, default=float))
-    return path

@@ -1,4 +1,4 @@
-"""Calibration report: the paper's measured quantities side by side with the simulated rig's.
+"""The simulator's calibration: the paper's measured quantities beside the simulated rig's.
 
 Targets (RIG.md section 1): travel at gross-slip onset 1.5 +/- 0.4 mm; Pearson R of the 200 Hz
 band amplitude vs F_T at fixed F_N, 0.97; final y ~2.5 mm with no control; gross slip within the
@@ -11,9 +11,49 @@ from pathlib import Path
 
 import numpy as np
 
-from .protocols import COLLECTION_FORCES_KPA, run_closed_loop, run_collection, run_constant
-from .rig import Rig, series_seed
-from .scene import Scene, validate_effects
+from typing import TYPE_CHECKING
+
+from incipient_slip.errors import UsageError
+
+from .settings import Settings
+
+if TYPE_CHECKING:
+    from incipient_slip.sim.scene import Scene
+
+NAME = "calibration"
+HELP = "the simulated rig against the paper's measured quantities"
+DOC = "simulator.md"
+
+
+
+def add_arguments(parser) -> None:
+    """Add the scene and the number of collection series."""
+    parser.add_argument("--scene", default="paper", help="scene name or YAML path (default paper; needs injection)")
+    parser.add_argument("--series", type=int, help="collection series per material (quick 1, full 20)")
+
+
+def run(settings: Settings) -> dict:
+    """Run the calibration checks on the scene; write the figures; return the numbers."""
+    from incipient_slip.sim.scene import SceneError, load_scene
+    try:
+        scene = load_scene(settings.option("scene", "paper"))
+    except SceneError as exc:
+        raise UsageError(str(exc)) from exc
+    n = settings.option("series", settings.pick(quick=1, full=20))
+    if n < 1:
+        raise UsageError(f"--series must be >= 1, got {n}")
+    if not scene.has("injection"):
+        raise UsageError(f"scene {scene.name!r} has no 'injection' effect; the 200 Hz band target needs it")
+    res = run_calibration(scene, n_per_material=n, seed=settings.seed, fig_dir=settings.figures)
+    return {**res, "scene": scene.name, "series_per_material": n}
+
+
+def render(results: dict) -> dict[str, str]:
+    """Return the calibration block of docs/simulator.md: the table and its figures."""
+    figs = "\n".join(f"![simulated rig: {f}](figures/{f})\n*Simulated rig, not a measurement: `{f}`.*\n"
+                     for f in results["figures"])
+    return {"calibration": f"{report_markdown(results['scene'], results)}\n\n{figs}"}
+
 
 MECHANICS = ("contact", "stick_slip", "mocap")
 VIBRATION = ("contact", "stick_slip", "fingertip_modes", "injection", "vibrotactile", "ambient_noise", "adc")
@@ -21,6 +61,7 @@ VIBRATION = ("contact", "stick_slip", "fingertip_modes", "injection", "vibrotact
 
 def subset(scene: Scene, effects) -> Scene:
     """Return the scene restricted to `effects` (those it has)."""
+    from incipient_slip.sim.scene import validate_effects
     keep = validate_effects([e for e in effects if scene.has(e)], scene.source or scene.name)
     return dataclasses.replace(scene, effects=keep)
 
@@ -35,6 +76,8 @@ def band_amplitude(pac_counts_window: np.ndarray, fs_hz: float, lo_hz: float = 1
 
 def collection_stats(scene: Scene, n_per_material: int, seed: int, steps: int = 450) -> dict:
     """Return onset travel, label distribution and per-series records from collection runs."""
+    from incipient_slip.sim.protocols import run_collection
+    from incipient_slip.sim.rig import Rig, series_seed
     from incipient_slip.models.labels import gross_slip_travel_mm, pseudo_stick_ratio
 
     mech = subset(scene, MECHANICS)
@@ -68,6 +111,8 @@ def collection_stats(scene: Scene, n_per_material: int, seed: int, steps: int = 
 
 def band_correlation(scene: Scene, forces_kpa=(2.3, 3.5, 4.7), seed: int = 1, steps: int = 450) -> dict:
     """Return Pearson R of the 200 Hz band amplitude vs F_T during stick, per (material, F_N)."""
+    from incipient_slip.sim.protocols import run_constant
+    from incipient_slip.sim.rig import Rig, series_seed
     vib = subset(scene, VIBRATION)
     if not vib.has("injection"):
         raise ValueError(f"scene {scene.name!r} has no 'injection' effect; the 200 Hz band check needs it")
@@ -93,6 +138,8 @@ def band_correlation(scene: Scene, forces_kpa=(2.3, 3.5, 4.7), seed: int = 1, st
 def no_control(scene: Scene, fn_kpa: float = 2.94, seeds: int = 10, seed: int = 2, steps: int = 450) -> dict:
     """Return, per material, (mean final y, mean first step with y > 1.5 mm or nan, fraction of runs with
     a gross slide) at constant F_N for all `steps` periods, as the paper's no-action runs."""
+    from incipient_slip.sim.protocols import run_constant
+    from incipient_slip.sim.rig import Rig, series_seed
     mech = subset(scene, MECHANICS)
     res = {}
     for mi, mat in enumerate(scene.materials):
@@ -119,6 +166,8 @@ def oracle_hold(scene: Scene, seeds: int = 3, seed: int = 4, steps: int = 450) -
     Uses `incipient_slip.control` unchanged (s_d = 0.3, k = 2 kPa, F_N in 1.1..6.0 kPa, 0.5 kPa per
     period, start at 2.9 kPa). Returns per material the mean final y, final F_N, max y, final s,
     the fraction of runs that held, and the mean first step with y > 1.5 mm (nan if none)."""
+    from incipient_slip.sim.protocols import run_closed_loop
+    from incipient_slip.sim.rig import Rig, series_seed
     from incipient_slip.control import DEFAULT_INITIAL_FORCE_KPA, FAILURE_TRAVEL_MM, ControlParams, next_force
 
     mech = subset(scene, MECHANICS)
@@ -152,6 +201,8 @@ def slip_coverage(scene: Scene, seed: int = 3, steps: int = 450) -> dict:
     """Return, per material, the largest constant F_N (kPa, collection grid) at which gross slip starts
     within the travel (nan when none does). The collection protocol's own coverage (every series
     reaches gross slip) is in `collection_stats`."""
+    from incipient_slip.sim.protocols import COLLECTION_FORCES_KPA, run_constant
+    from incipient_slip.sim.rig import Rig, series_seed
     mech = subset(scene, ("contact", "stick_slip"))
     res = {}
     for mi, mat in enumerate(scene.materials):
@@ -258,7 +309,7 @@ def run_calibration(scene: Scene, n_per_material: int = 20, seed: int = 0, fig_d
     return res
 
 
-def report_markdown(scene: Scene, res: dict) -> str:
+def report_markdown(scene_name: str, res: dict) -> str:
     """Return the calibration table as markdown (the section written into docs/simulator.md)."""
     tb = res["travel_before_rule_mm"]
     ta = res["travel_at_rule_mm"]
@@ -274,7 +325,7 @@ def report_markdown(scene: Scene, res: dict) -> str:
     no_onset = res["onset_period"][1]
     held = all(v["held"] == 1.0 for v in orc.values())
     lines = [
-        f"Scene `{scene.name}`, {res['n_series']} collection series (all materials); simulated rig, not measurements.",
+        f"Scene `{scene_name}`, {res['n_series']} collection series (all materials); simulated rig, not measurements.",
         "",
         "| quantity | paper | simulated rig |",
         "|---|---|---|",

@@ -1,0 +1,32 @@
+"""The paper's results, one module per result, all of one shape.
+
+Each experiment module defines
+
+* `NAME`, `HELP` (one line) and `DOC`, the docs page (relative to docs/) its blocks go into;
+* `add_arguments(parser)`: its own command-line options (the shared ones are in `Settings`);
+* `run(settings) -> results`: does the work within the settings' budget and returns a dict that
+  JSON can hold (figures are written while running, into `settings.figures`);
+* `render(results) -> {block_name: markdown}`: the generated parts of the docs page. The page's
+  prose is hand-written; `docs.write_blocks` puts each block between its markers.
+
+`slip reproduce NAME` runs one (`experiments.cli`); `slip reproduce --list` lists them.
+"""
+from __future__ import annotations
+
+import importlib
+from types import ModuleType
+
+# name -> module; listed in the paper's order
+EXPERIMENTS = {
+    "calibration": "incipient_slip.experiments.calibration",
+    "estimation": "incipient_slip.experiments.estimation",
+    "accuracy-vs-time": "incipient_slip.experiments.accuracy_vs_time",
+    "models": "incipient_slip.experiments.models",
+    "stabilization": "incipient_slip.experiments.stabilization",
+    "diagnosis": "incipient_slip.experiments.diagnosis",
+}
+
+
+def load(name: str) -> ModuleType:
+    """Return the module of experiment `name` (a key of EXPERIMENTS)."""
+    return importlib.import_module(EXPERIMENTS[name])

@@ -1,0 +1,53 @@
+"""The simulated data sets the learning experiments share, made once and reused.
+
+This is where the simulator meets learning: `models/` only reads data-set directories, `sim/`
+only writes them, and an experiment asks here for the directory it needs.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from incipient_slip.models import dataset as ds
+from incipient_slip.paths import runs_dir
+from incipient_slip.sim.dataset import physics_fingerprint, write_dataset
+from incipient_slip.sim.scene import load_scene
+
+from .settings import Settings
+
+
+def data_root(settings: Settings) -> Path:
+    """Return where data sets are cached: --data, else runs/data (full) or WORK/data (quick)."""
+    return Path(settings.option("data", settings.pick(quick=settings.work / "data",
+                                                      full=runs_dir() / "data")))
+
+
+def ensure_dataset(scene: str, n_series: int, seed: int, out_dir: Path, workers: int = 2,
+                   steps: int = 450, progress: bool = True) -> Path:
+    """Return a data set directory for (scene, n_series, seed, steps), simulating it if needed."""
+    out_dir = Path(out_dir)
+    scene_obj = load_scene(scene)
+    try:
+        meta = ds.read_meta(out_dir)
+        # Reuse only data made by the same physics: a recalibrated simulator must not be
+        # evaluated on the old one's data.
+        if (meta.get("scene") == scene and meta.get("seed") == seed and meta.get("n_series") == n_series
+                and meta.get("steps") == steps and len(ds.series_paths(out_dir)) == n_series
+                and meta.get("physics_fingerprint") == physics_fingerprint(scene_obj)):
+            return out_dir
+    except ds.DatasetError:
+        pass
+    for stale in out_dir.glob("series_*.npz"):   # from other physics or an interrupted run
+        stale.unlink()
+    write_dataset(scene_obj, n_series, seed, out_dir, workers=workers, steps=steps,
+                  progress=progress)
+    return out_dir
+
+
+def study_datasets(settings: Settings, n_series: int, steps: int, seed: int | None = None,
+                   scenes=("paper", "no_injection")) -> dict[str, Path]:
+    """Return {scene: directory} of the data sets of one study (same seed and size per scene)."""
+    seed = settings.seed if seed is None else seed
+    root = data_root(settings)
+    return {sc: ensure_dataset(sc, n_series, seed, root / f"{sc}_{n_series}_s{seed}_{steps}",
+                               workers=settings.jobs, steps=steps, progress=settings.progress)
+            for sc in scenes}

@@ -1,0 +1,24 @@
+"""matplotlib for the experiments' figures: no display needed, imported only when plotting."""
+from __future__ import annotations
+
+from pathlib import Path
+
+SIM_LABEL = "simulated rig"     # in every figure title: these are statements about the simulator
+
+
+def pyplot():
+    """Return matplotlib.pyplot on the non-interactive Agg backend."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def save(fig, path: Path, dpi: int = 110) -> Path:
+    """Write `fig` to `path` (creating its directory), close it and return the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    pyplot().close(fig)
+    return path
