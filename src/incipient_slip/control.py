@@ -20,6 +20,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from incipient_slip.errors import EXIT_FAILURE, EXIT_FAULT, EXIT_SUCCESS
+
 SAFETY_LIMIT_KPA = 6.0          # paper: failure when F_N > 6.0 kPa (the robot's safety limit)
 FAILURE_TRAVEL_MM = 1.5         # paper: failure when y > 1.5 mm (mean travel at gross slip)
 MAX_STEPS = 450                 # paper: 23 mm in 450 actuator steps, one per period
@@ -150,7 +152,7 @@ class Verdict:
         return bool(self.kind)
 
 
-EXIT_CODES = {"success": 0, "failure": 1, "fault": 3}
+EXIT_CODES = {"success": EXIT_SUCCESS, "failure": EXIT_FAILURE, "fault": EXIT_FAULT}
 
 
 def judge_step(steps_done: int, travel_mm: float, force_kpa: float, consecutive_holds: int,

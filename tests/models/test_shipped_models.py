@@ -40,19 +40,3 @@ def test_shipped_model_estimates_a_window_in_the_unit_interval(method):
 def test_all_shipped_models_share_one_held_out_series_set():
     sets = {tuple(read_model_file(default_model_path(m)).header["test_series"]) for m in METHODS}
     assert len(sets) == 1
-
-
-@pytest.mark.slow
-def test_regen_is_deterministic(tmp_path):
-    pytest.importorskip("incipient_slip.sim.dataset")
-    from incipient_slip.models.cli import regen_models
-    runs = []
-    for k in range(2):
-        out = tmp_path / f"m{k}"
-        regen_models(series=6, seed=3, work=tmp_path / "data", out=out, methods=["e4", "e1"], progress=False)
-        runs.append({m: read_model_file(out / f"{m}.npz") for m in ("e4", "e1")})
-    for m in ("e4", "e1"):
-        a, b = runs[0][m], runs[1][m]
-        np.testing.assert_array_equal(a.centers, b.centers)
-        np.testing.assert_array_equal(a.weights, b.weights)
-        assert a.header == b.header

@@ -1,0 +1,52 @@
+"""Data sets reused only from the same physics; what the render functions compute."""
+import json
+import sys
+from pathlib import Path
+
+from incipient_slip.experiments import accuracy_vs_time, diagnosis, estimation
+from incipient_slip.experiments.datasets import ensure_dataset
+
+sys.path.insert(0, str(Path(__file__).parent))
+from samples import SAMPLES  # noqa: E402
+
+
+def test_cached_data_set_from_other_physics_is_regenerated(tmp_path):
+    """A data set cached before the simulator changed must not be reused."""
+    out = tmp_path / "mech"
+    ensure_dataset("mechanics", 2, 0, out, workers=1, steps=4, progress=False)
+    meta = json.loads((out / "meta.json").read_text())
+    first = (out / "series_00000.npz").stat().st_mtime_ns
+    assert ensure_dataset("mechanics", 2, 0, out, workers=1, steps=4, progress=False) == out
+    assert (out / "series_00000.npz").stat().st_mtime_ns == first   # reused while physics is the same
+    meta["physics_fingerprint"] = "older-physics"
+    (out / "meta.json").write_text(json.dumps(meta))
+    ensure_dataset("mechanics", 2, 0, out, workers=1, steps=4, progress=False)
+    assert json.loads((out / "meta.json").read_text())["physics_fingerprint"] != "older-physics"
+
+
+def test_pareto_front_keeps_only_undominated_points_sorted_by_delay():
+    pts = [{"delay_s": 1.0, "rmse": 0.2}, {"delay_s": 0.5, "rmse": 0.3}, {"delay_s": 2.0, "rmse": 0.25},
+           {"delay_s": 2.0, "rmse": 0.1}, {"delay_s": 0.5, "rmse": 0.35}]
+    front = accuracy_vs_time.pareto_front(pts)
+    assert [(p["delay_s"], p["rmse"]) for p in front] == [(0.5, 0.3), (1.0, 0.2), (2.0, 0.1)]
+
+
+def test_accuracy_vs_time_says_whether_the_scale_goal_was_met():
+    blocks = accuracy_vs_time.render(SAMPLES["accuracy-vs-time"]())
+    assert "(-2.8 % vs the best exact SVR; goal: within +5 %, met)" in blocks["tradeoff-scale"]
+    assert "Pareto front (delay, RMSE): T = 0.5 s (0.50 s, 0.200); T = 1 s (1.00 s, 0.170)" in blocks["tradeoff-sweeps"]
+
+
+def test_estimation_verdict_names_where_injection_is_better_worse_or_the_same():
+    blocks = estimation.render(SAMPLES["estimation"]())
+    assert ("Injection's RMSE is lower than vibrotactile; higher than E19, E10, E4, E1 (Holm-corrected"
+            in blocks["estimation-paper-rule"])
+    assert "not significantly different from vibrotactile, E19, E10, E4, E1" in blocks["estimation-incipient"]
+    assert "mean R within one F_N level = –" in blocks["estimation-band"]      # NaN shown as a dash
+
+
+def test_diagnosis_tables_show_the_loop_and_step_numbers():
+    blocks = diagnosis.render(SAMPLES["diagnosis"]())
+    assert "| injection loop, seed 0 | y > 1.5 mm | 195 | 1.10 | 1.51 | 0.43 / 0.02 / 0.01 | – / – (0) |" \
+        in blocks["diagnosis-loops"]
+    assert "| 0, 0.190 N | 0.60 → 0.60 | 0.26 | 0.28 → 0.28 | 0.58 → 0.58 |" in blocks["diagnosis-step"]
