@@ -18,7 +18,7 @@ stream is gone) or after 450 steps (success). The score is the paper's eq. "rewa
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from incipient_slip.errors import EXIT_FAILURE, EXIT_FAULT, EXIT_SUCCESS
 
@@ -189,24 +189,3 @@ def score(success_rate: float, travel_mm: float, force_kpa: float,
     if travel_mm <= 0 or force_kpa <= 0:
         raise ValueError(f"score: y and F_N must be positive, got y={travel_mm}, F_N={force_kpa}")
     return (w1 + success_rate) * (w2 / travel_mm + w3 / force_kpa)
-
-
-@dataclass
-class RunSummary:
-    """What the supervisor writes: outcome, final y and F_N, steps and the per-step traces."""
-
-    outcome: str
-    detail: str
-    steps: int
-    final_travel_mm: float
-    final_force_kpa: float
-    method: str = ""
-    target_stick_ratio: float = float("nan")
-    gain_kpa: float = float("nan")
-    seed: int = 0
-    material: str = ""
-    traces: dict = field(default_factory=dict)
-
-    @property
-    def success(self) -> bool:
-        return self.outcome == "success"

@@ -225,7 +225,7 @@ class Watcher(Node):
 def test_estimator_killed_mid_run_controller_holds_within_one_period_and_run_ends_as_fault(graph, tmp_path):
     from incipient_slip.models.estimator_core import default_model_path
     if not default_model_path("injection").exists():
-        pytest.skip("shipped model models/injection.npz is missing (slip model regen)")
+        pytest.skip("shipped model models/injection.npz is missing (slip reproduce models)")
     summary = tmp_path / "run.json"
     # a high target keeps F_N low and y small, so the run is still going when the estimator dies
     proc = graph.spawn(launch_cmd("s_d:=0.8", "k:=0.5", f"summary:={summary}"))

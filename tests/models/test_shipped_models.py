@@ -1,4 +1,4 @@
-"""The shipped default models (models/*.npz, written by `slip model regen`) stay usable."""
+"""The shipped default models (models/*.npz, written by `slip reproduce models`) stay usable."""
 import zipfile
 
 import numpy as np
@@ -13,7 +13,7 @@ from incipient_slip.models.modelfile import read_model_file
 def test_shipped_model_matches_the_current_feature_code(method):
     model = load_model(default_model_path(method), method=method)
     assert model.header["feature_spec_hash"] == feature_spec(method).spec_hash(), (
-        f"models/{method}.npz was trained with another phi; run `slip model regen`")
+        f"models/{method}.npz was trained with another phi; run `slip reproduce models`")
 
 
 @pytest.mark.parametrize("method", METHODS)

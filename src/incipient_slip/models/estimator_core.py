@@ -32,7 +32,6 @@ from .modelfile import Model, ModelFileError, read_model_file
 __all__ = ["Model", "ModelFileError", "StreamError", "Estimate", "StreamingEstimator",
            "load_model", "default_model_path", "estimate_window", "limit_blas_threads"]
 
-PAC_FRAME_SAMPLES = 22
 OK, FILLING, SEQ_GAP, STALE, BACKWARDS, NO_DATA = (
     "ok", "filling", "seq gap", "stale", "stamp went backwards", "no data")
 
@@ -81,7 +80,7 @@ def load_model(path: str | Path | None = None, *, method: str | None = None,
     spec, header = model.spec, model.header
     if spec.code_version != FEATURE_CODE_VERSION:
         raise ModelFileError(f"{path}: feature_spec.code_version is {spec.code_version}, this code "
-                             f"computes version {FEATURE_CODE_VERSION}; retrain (`slip model regen`)")
+                             f"computes version {FEATURE_CODE_VERSION}; retrain (`slip reproduce models`)")
     if header.get("feature_spec_hash") != spec.spec_hash():
         raise ModelFileError(f"{path}: feature_spec_hash {header.get('feature_spec_hash')} does not "
                              f"match its feature_spec ({spec.spec_hash()}); file edited or corrupt")

@@ -98,21 +98,6 @@ def label_series(series) -> SeriesLabels:
     return pseudo_stick_ratio(series.tangential_force_n, travel)
 
 
-def label_error_vs_truth(pseudo: np.ndarray, stick_area_ratio: np.ndarray,
-                         load_ratio_stick: np.ndarray) -> dict:
-    """Return RMSE and mean bias of the pseudo label against the simulator's true ratios."""
-    out = {}
-    for name, truth in (("stick_area_ratio", stick_area_ratio), ("load_ratio_stick", load_ratio_stick)):
-        ok = np.isfinite(pseudo) & np.isfinite(truth)
-        if not ok.any():
-            out[name] = {"rmse": float("nan"), "bias": float("nan"), "n": 0}
-            continue
-        err = pseudo[ok] - truth[ok]
-        out[name] = {"rmse": float(np.sqrt(np.mean(err ** 2))), "bias": float(np.mean(err)),
-                     "n": int(ok.sum())}
-    return out
-
-
 def true_ratio_label(load_ratio_stick: np.ndarray, gross_slip: np.ndarray | None = None) -> np.ndarray:
     """Return the simulator's true load ratio per period as a label (EXTENSION, not the paper's).
 

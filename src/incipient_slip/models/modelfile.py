@@ -139,7 +139,7 @@ def read_model_file(path: str | Path) -> Model:
     path = Path(path)
     if not path.is_file():
         raise ModelFileError(f"model file {path} does not exist (train one with `slip train` "
-                             "or regenerate the shipped ones with `slip model regen`)")
+                             "or regenerate the shipped ones with `slip reproduce models`)")
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}

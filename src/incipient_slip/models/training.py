@@ -250,17 +250,6 @@ def nystroem_solve(sums: dict, norm, alpha: float):
     return norm.T @ beta, ymean - float(fmean @ beta)
 
 
-def fit_nystroem(Z, y, gamma, n_components, alpha, seed=SPLIT_SEED):
-    """Return (centers, weights, intercept): RBF Nystroem features + ridge, as one kernel expansion.
-
-    The ridge normal equations are accumulated chunk by chunk (memory: chunk x n_components,
-    whatever the number of windows); weights = N^T beta folds the map back into the kernel form.
-    """
-    centers, norm = nystroem_basis(Z, n_components, gamma, seed)
-    w, b = nystroem_solve(nystroem_sums(Z, y, centers, norm, gamma), norm, alpha)
-    return centers, w, b
-
-
 NYSTROEM_ALPHAS = (1e-5, 1e-4, 1e-3, 1e-2)
 
 
@@ -343,10 +332,6 @@ def train_model(ws: WindowSet, kind: str = "svr", max_train: int | None = 6000,
                          "n_fit_windows": report.get("n_fit"),
                          "train_series": [int(v) for v in np.unique(groups)]})
     return TrainResult(model, report)
-
-
-def _kernel_predict(Z, centers, weights, b, gamma):
-    return np.clip(rbf_kernel(Z, centers, gamma) @ weights + b, 0, 1)
 
 
 def _rmse(pred, y):
