@@ -17,6 +17,7 @@ import numpy as np
 from incipient_slip.models.estimator_core import (StreamingEstimator, default_model_path,
                                                   limit_blas_threads, load_model)
 from incipient_slip.models.features import METHODS, phi
+from incipient_slip.messages import PAC_RATE_HZ, PAC_SAMPLES_PER_FRAME
 from incipient_slip.models.training import model_from_svr
 
 REPS = 600
@@ -28,9 +29,9 @@ def feed(est, model, seconds=3.0, seed=0):
     if model.spec.stream == "pac":
         n_frames = int(seconds * 100)
         for j in range(n_frames):
-            stamp = int(round(((j + 1) * 22 - 1) * 1e9 / 2200))
-            est.push(stamp, j, rng.normal(0, 80, 22).astype(np.int16))
-        return int(round(n_frames * 22 * 1e9 / 2200))
+            stamp = int(round(((j + 1) * PAC_SAMPLES_PER_FRAME - 1) * 1e9 / PAC_RATE_HZ))
+            est.push(stamp, j, rng.normal(0, 80, PAC_SAMPLES_PER_FRAME).astype(np.int16))
+        return int(round(n_frames * PAC_SAMPLES_PER_FRAME * 1e9 / PAC_RATE_HZ))
     n = int(seconds * 100)
     for j in range(n):
         est.push(int(round(j * 1e7)), j, (2000 + rng.normal(0, 20, 19)).astype(np.uint16))

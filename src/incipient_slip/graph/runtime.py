@@ -36,6 +36,7 @@ import zmq
 
 from incipient_slip import messages as M
 from incipient_slip.graph import discovery
+from incipient_slip.errors import EXIT_FAILURE, EXIT_USAGE
 from incipient_slip.graph.params import ParamError, as_param, merge_params, parse_node_argv
 
 __all__ = ["Node", "Publisher", "RawPublisher", "Subscription", "RawSubscription", "Timer",
@@ -545,7 +546,7 @@ def run_node(node_class: type[Node], argv: list[str] | None = None, **kwargs) ->
         args = parse_node_argv(argv)
     except ParamError as exc:
         print(f"{node_class.__name__}: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     node = None
 
     def on_signal(signum, frame):
@@ -562,12 +563,12 @@ def run_node(node_class: type[Node], argv: list[str] | None = None, **kwargs) ->
         return node.spin()
     except ParamError as exc:
         print(f"{node_class.__name__}: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     except KeyboardInterrupt:
         return 0 if node is None or node.exit_code == 0 else node.exit_code
     except Exception:
         traceback.print_exc()
-        return 1
+        return EXIT_FAILURE
     finally:
         if node is not None:
             node.close()

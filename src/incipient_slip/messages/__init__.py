@@ -10,8 +10,8 @@ from incipient_slip.messages.codec import (
 )
 from incipient_slip.messages.fields import MAX_BODY_BYTES, MAX_STRING, Message, MessageError
 from incipient_slip.messages.types import (
-    DEFAULT_TOPICS, ELECTRODE_COUNT, MESSAGE_TYPES, METHODS, PAC_SAMPLES_PER_FRAME,
-    RUN_EVENT_KINDS, ActuatorCommand, ActuatorState, BiotacPac, BiotacSlow, GripCommand,
+    DEFAULT_TOPICS, ELECTRODE_COUNT, MESSAGE_TYPES, METHODS, MOCAP_RATE_HZ, PAC_RATE_HZ,
+    PAC_SAMPLES_PER_FRAME, PERIOD_NS, RUN_EVENT_KINDS, SLOW_RATE_HZ, ActuatorCommand, ActuatorState, BiotacPac, BiotacSlow, GripCommand,
     Heartbeat, ObjectPose, PztCommand, PztState, RobotState, RunEvent, SlipEstimate,
 )
 
@@ -21,4 +21,5 @@ __all__ = [
     "BiotacPac", "BiotacSlow", "PztCommand", "PztState", "ObjectPose", "ActuatorCommand",
     "ActuatorState", "GripCommand", "RobotState", "SlipEstimate", "RunEvent", "Heartbeat",
     "PAC_SAMPLES_PER_FRAME", "ELECTRODE_COUNT", "METHODS", "RUN_EVENT_KINDS",
+    "PERIOD_NS", "PAC_RATE_HZ", "SLOW_RATE_HZ", "MOCAP_RATE_HZ",
 ]

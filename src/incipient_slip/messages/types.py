@@ -12,6 +12,10 @@ import numpy as np
 
 from incipient_slip.messages.fields import Message, array, flag, integer, real, text
 
+PERIOD_NS = 500_000_000         # the paper samples every 500 ms; messages carry its index
+PAC_RATE_HZ = 2200              # BioTac P_AC
+SLOW_RATE_HZ = 100              # BioTac P_DC, T_AC, T_DC and electrodes
+MOCAP_RATE_HZ = 120             # motion capture of the object
 PAC_SAMPLES_PER_FRAME = 22      # 2200 Hz P_AC in 10 ms frames
 ELECTRODE_COUNT = 19
 ADC_MAX = 4095                  # the BioTac's 12-bit ADC

@@ -37,13 +37,14 @@ from functools import lru_cache
 
 import numpy as np
 
+from incipient_slip.messages import ELECTRODE_COUNT as N_ELECTRODES
+from incipient_slip.messages import METHODS as WIRE_METHODS
+from incipient_slip.messages import PAC_RATE_HZ, SLOW_RATE_HZ
+
 FEATURE_CODE_VERSION = 1
-PAC_RATE_HZ = 2200
-SLOW_RATE_HZ = 100
-N_ELECTRODES = 19
 LOG_FLOOR_COUNTS = 1e-3
 
-METHODS = ("injection", "vibrotactile", "e19", "e10", "e4", "e1")
+METHODS = tuple(m for m in WIRE_METHODS if m != "none")    # the six estimation methods
 
 ELECTRODE_SUBSETS = {
     "e19": tuple(range(1, 20)),

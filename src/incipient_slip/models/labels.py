@@ -32,8 +32,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from incipient_slip.messages import PERIOD_NS
+
 GROSS_SLIP_MM = 0.02          # travel per 500 ms that counts as gross slip (paper)
-GROSS_SLIP_SPAN_S = 0.5       # second half of the paper's T = 1.0 s window (= one period)
+GROSS_SLIP_SPAN_S = PERIOD_NS / 1e9   # second half of the paper's T = 1.0 s window (= one period)
 EARLY_S = 0.025               # mocap averaged over the first 25 ms of the period ...
 LATE_S = 0.05                 # ... and over its last 50 ms
 LABELS = ("pseudo", "true-ratio")   # "pseudo": the paper's rule (default); "true-ratio": extension

@@ -28,7 +28,7 @@ import time
 from collections import deque
 
 from incipient_slip.messages import (
-    PAC_SAMPLES_PER_FRAME, BiotacPac, BiotacSlow, PztState, SlipEstimate,
+    PAC_SAMPLES_PER_FRAME, PERIOD_NS, BiotacPac, BiotacSlow, PztState, SlipEstimate,
 )
 from incipient_slip.models.estimator_core import (
     ModelFileError, StreamError, StreamingEstimator, default_model_path, load_model,
@@ -47,7 +47,7 @@ class Estimator(Node):
         "method": "injection",
         "model": "",                      # "": models/<method>.npz
         "window_s": 0.0,                  # 0: the model's window; otherwise must equal it
-        "period_s": 0.5,
+        "period_s": PERIOD_NS / 1e9,
         "stale_after_s": 0.05,            # newest sample older than this before B: stale
         "wall_timeout_s": 2.0,            # no frame for this long (wall clock): stale; 0 = off
     }

@@ -44,9 +44,10 @@ import numpy as np
 
 from incipient_slip import control
 from incipient_slip.messages import (
-    ActuatorState, BiotacPac, BiotacSlow, GripCommand, ObjectPose, PztCommand, PztState,
+    PAC_RATE_HZ, PAC_SAMPLES_PER_FRAME, PERIOD_NS, ActuatorState, BiotacPac, BiotacSlow, GripCommand, ObjectPose, PztCommand, PztState,
     RobotState,
 )
+from incipient_slip.errors import EXIT_FAULT
 from incipient_slip.graph.params import ParamError
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.sim.protocols import collection_forces_kpa
@@ -54,12 +55,9 @@ from incipient_slip.sim.rig import PeriodOutput, Rig
 from incipient_slip.sim.scene import SceneError, load_scene
 
 PROTOCOLS = ("closed_loop", "collection")
-PERIOD_NS = 500_000_000
-PAC_RATE_HZ = 2200
-PAC_FRAME = 22
+PAC_FRAME = PAC_SAMPLES_PER_FRAME
 FRAMES_PER_PERIOD = 50
 SLOW_FRAME_NS = 10_000_000
-EXIT_FAULT = 3
 _IDENTITY_XYZW = np.array([0.0, 0.0, 0.0, 1.0])
 
 

@@ -22,13 +22,12 @@ from pathlib import Path
 
 from incipient_slip import control
 from incipient_slip.messages import (
-    BiotacSlow, GripCommand, ObjectPose, PztState, RobotState, RunEvent, SlipEstimate,
+    MOCAP_RATE_HZ, PERIOD_NS, BiotacSlow, GripCommand, ObjectPose, PztState, RobotState, RunEvent, SlipEstimate,
 )
 from incipient_slip.graph.runtime import Node, run_node
 
 NAN = float("nan")
-PERIOD_NS = 500_000_000
-MOCAP_SAMPLE_NS = 1_000_000_000 // 120
+MOCAP_SAMPLE_NS = 1_000_000_000 // MOCAP_RATE_HZ
 
 
 class Supervisor(Node):
