@@ -30,3 +30,8 @@ def model_dir() -> Path:
 def runs_dir() -> Path:
     """Return runs/ at the repository root (git-ignored outputs of runs, training and studies)."""
     return repo_root() / "runs"
+
+
+def docs_dir() -> Path:
+    """Return docs/ at the repository root (the hand-written pages the experiments write into)."""
+    return repo_root() / "docs"

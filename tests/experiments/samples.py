@@ -5,7 +5,7 @@ import json
 from pathlib import Path
 
 from incipient_slip.models.features import METHODS
-from incipient_slip.paths import repo_root
+from incipient_slip.paths import docs_dir
 
 
 def _study(p_holm: float) -> dict:
@@ -72,7 +72,7 @@ def calibration() -> dict:
 
 def stabilization() -> dict:
     """The committed results behind docs/stabilization.md."""
-    return json.loads((repo_root() / "docs" / "figures" / "stab_results.json").read_text())
+    return json.loads((docs_dir() / "figures" / "stab_results.json").read_text())
 
 
 def diagnosis() -> dict:
@@ -98,4 +98,4 @@ SAMPLES = {"calibration": calibration, "estimation": estimation, "accuracy-vs-ti
 
 def docs_page(name: str) -> Path:
     from incipient_slip.experiments import load
-    return repo_root() / "docs" / load(name).DOC
+    return docs_dir() / load(name).DOC

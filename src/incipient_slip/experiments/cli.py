@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 from incipient_slip.errors import UsageError
-from incipient_slip.paths import repo_root, runs_dir
+from incipient_slip.paths import docs_dir, runs_dir
 
 from . import EXPERIMENTS, load
 from .docs import DocsError, write_blocks
@@ -75,7 +75,7 @@ def settings_from_args(args: argparse.Namespace, module) -> Settings:
         raise UsageError(f"--jobs must be >= 1, got {args.jobs}")
     quick = args.budget == "quick"
     work = args.out or runs_dir() / (f"{args.experiment}-quick" if quick else args.experiment)
-    docs = args.docs if args.docs is not None else (None if quick else repo_root() / "docs")
+    docs = args.docs if args.docs is not None else (None if quick else docs_dir())
     options = {k: v for k, v in vars(args).items() if k not in COMMON + ("func", "command", "experiment", "list")}
     return Settings(budget=args.budget, seed=seed, work=work, docs=docs, jobs=args.jobs,
                     progress=not args.quiet, options=options)

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from incipient_slip import control
+from incipient_slip.errors import UsageError
 from incipient_slip.paths import repo_root
 
 from .runner import GraphRunner, RunSpec
@@ -70,30 +71,33 @@ def sweep_targets(settings: Settings) -> tuple[float, ...]:
     return settings.pick(quick=(0.3, 0.7), full=(0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8))
 
 
-def _checked(settings: Settings) -> dict:
-    from incipient_slip.errors import UsageError
+def options(settings: Settings) -> dict:
+    """Return the run options (runs, steps, methods, s_d, k, gains, ...) checked; UsageError if bad."""
     o = settings.options
     runs = settings.option("runs", settings.pick(quick=2, full=10))
     steps = settings.option("steps", settings.pick(quick=20, full=control.MAX_STEPS))
+    s_d = float(settings.option("s_d", control.DEFAULT_TARGET_STICK_RATIO))
+    k = float(settings.option("k", control.DEFAULT_GAIN_KPA))
     if runs < 1 or steps < 1:
         raise UsageError(f"--runs and --steps must be >= 1, got {runs} and {steps}")
-    if not (0.0 <= o.get("s_d", 0.3) <= 1.0) or not math.isfinite(o.get("k", 2.0)) or o.get("k", 2.0) <= 0:
-        raise UsageError(f"--s-d must be in [0, 1] and --k > 0, got {o.get('s_d')} and {o.get('k')}")
+    if not 0.0 <= s_d <= 1.0 or not (math.isfinite(k) and k > 0):
+        raise UsageError(f"--s-d must be in [0, 1] and --k finite and > 0, got {s_d} and {k}")
     grid = None
     if o.get("tune_k"):
         try:
             grid = [float(x) for x in o["tune_k"].split(",")]
         except ValueError:
             raise UsageError(f"--tune-k takes gains separated by commas, got {o['tune_k']!r}") from None
-        if not all(math.isfinite(k) and k > 0 for k in grid):
+        if not all(math.isfinite(g) and g > 0 for g in grid):
             raise UsageError(f"--tune-k gains must be finite and > 0, got {o['tune_k']!r}")
-    methods = tuple(o.get("methods") or TABLE_METHODS)
+    methods = tuple(settings.option("methods", TABLE_METHODS))
     if o.get("model") is not None and (len(methods) != 1 or methods[0] == "none"):
         raise UsageError("--model needs exactly one --methods (not none)")
-    return {"runs": runs, "steps": steps, "grid": grid, "methods": methods,
-            "s_d": float(o.get("s_d", control.DEFAULT_TARGET_STICK_RATIO)),
-            "k": float(o.get("k", control.DEFAULT_GAIN_KPA)), "start": o.get("start") or "fork",
+    return {"runs": runs, "steps": steps, "grid": grid, "methods": methods, "s_d": s_d, "k": k,
+            "start": settings.option("start", "fork"),
             "sweep_runs": settings.option("sweep_runs", settings.pick(quick=1, full=3))}
+
+
 # --- statistics ------------------------------------------------------------------------------
 
 def run_score(summary: dict) -> float:
@@ -326,7 +330,7 @@ def _previous(settings: Settings) -> dict:
 
 def run(settings: Settings) -> dict:
     """Run the Table (and the k study, s_d sweep or extension when asked); return all results."""
-    c = _checked(settings)
+    c = options(settings)
     results = _previous(settings)
     work = settings.work
     runner = GraphRunner(jobs=settings.jobs, start=c["start"])
@@ -380,7 +384,6 @@ def run(settings: Settings) -> dict:
 
 def _run_extension(settings: Settings, c: dict, runner: GraphRunner) -> dict:
     """The Table's runs of one method with another model file in its estimator (extension)."""
-    from incipient_slip.errors import UsageError
     from incipient_slip.models.estimator_core import load_model
     from incipient_slip.models.modelfile import ModelFileError
     method = c["methods"][0]
