@@ -45,7 +45,8 @@ def add_arguments(parser) -> None:
 
 
 def slip_force_stats(material: str, data_dir: Path) -> dict:
-    """F_T^slip and the F_N at slip of the collection series of one material."""
+    """Return F_T^slip and the F_N at slip of one material's collection series ({"n_series": 0}
+    when none of them slipped)."""
     from incipient_slip.models.dataset import load_series, series_paths
     from incipient_slip.models.labels import label_series
     ft, fn, k = [], [], []
@@ -59,6 +60,8 @@ def slip_force_stats(material: str, data_dir: Path) -> dict:
         ft.append(lab.tangential_force_slip_n)
         fn.append(float(s.normal_force_kpa[lab.gross_slip_index]))
         k.append(lab.gross_slip_index)
+    if not ft:
+        return {"n_series": 0}
     ft, fn = np.array(ft), np.array(fn)
     return {"n_series": len(ft), "ft_slip_median_n": float(np.median(ft)),
             "ft_slip_q25_n": float(np.percentile(ft, 25)), "ft_slip_q75_n": float(np.percentile(ft, 75)),
@@ -97,7 +100,8 @@ def record(out, ests: dict, ft_slip: float) -> dict:
 
 def closed_loop(method: str, material: str, seed: int, models: dict, ft_slip: float,
                 steps: int = 450, oracle: bool = False) -> list[dict]:
-    """One run of the paper's law; driven by `method`'s estimate or (oracle) the true ratio."""
+    """Return the per-period records of one run of the paper's law, driven by `method`'s
+    estimate or (oracle) by the simulator's true load ratio."""
     from incipient_slip.models.estimator_core import estimate_window
     from incipient_slip.sim.rig import Rig
     from incipient_slip.sim.scene import load_scene
