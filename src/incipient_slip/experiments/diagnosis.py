@@ -25,7 +25,7 @@ import numpy as np
 from incipient_slip import control
 from incipient_slip.errors import UsageError
 
-from .plots import pyplot, save
+from .plots import METHOD_LABELS, pyplot, save
 from .settings import Settings
 
 NAME = "diagnosis"
@@ -231,9 +231,6 @@ def summarize(res: dict) -> dict:
 
 # --- the page's blocks -----------------------------------------------------------------------
 
-LABELS = {"injection": "injection", "e19": "E19"}
-
-
 def _f(v, spec=".2f") -> str:
     return "–" if v is None or not np.isfinite(v) else format(v, spec)
 
@@ -252,7 +249,8 @@ def render(results: dict) -> dict[str, str]:
              "|---|---|---|---|---|---|---|"]
     for name, d in results["loops"].items():
         m, seed = name.split("/")
-        loops.append(f"| {LABELS[m]} loop, seed {seed} | {d['end']} | {d['steps']} | {_f(d['fn'])} | "
+        label = METHOD_LABELS[m].removesuffix(" (ours)")
+        loops.append(f"| {label} loop, seed {seed} | {d['end']} | {d['steps']} | {_f(d['fn'])} | "
                      f"{_f(d['y'])} | {_f(d['est_last'])} / {_f(d['pseudo_last'])} / {_f(d['true_last'])} | "
                      f"{_f(d['rmse_pseudo_div'])} / {_f(d['rmse_true_div'])} ({d['n_diverged']}) |")
     for seed, d in results["oracle"].items():

@@ -15,6 +15,7 @@ import numpy as np
 from incipient_slip.models.features import feature_spec
 
 from .plots import SIM_LABEL as LABEL
+from .plots import METHOD_LABELS as NAMES
 from .plots import pyplot, save
 from .settings import Settings
 
@@ -69,8 +70,6 @@ def _cores() -> str:
     return f"{os.cpu_count()} cores"
 
 
-NAMES = {"injection": "injection (ours)", "vibrotactile": "vibrotactile", "e19": "E19",
-         "e10": "E10", "e4": "E4", "e1": "E1"}
 
 # The paper gives the estimation results as figures only; its findings, in words.
 PAPER_FINDINGS = {

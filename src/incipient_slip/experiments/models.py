@@ -11,6 +11,7 @@ from pathlib import Path
 
 from incipient_slip.models.features import METHODS
 
+from .plots import METHOD_LABELS
 from .settings import Settings
 
 NAME = "models"
@@ -76,7 +77,6 @@ def run(settings: Settings) -> dict:
 
 def render(results: dict) -> dict[str, str]:
     """Return the shipped-models block of docs/estimation.md."""
-    from .estimation import NAMES
     lines = [f"{results['series']} series per scene (seed {results['seed']}), T = 1.0 s, exact SVR "
              f"by grid search on <= {results['max_train']} windows of the incipient-slip range "
              "(simulated rig). Held-out RMSE is on that set's own held-out series.", "",
@@ -85,6 +85,6 @@ def render(results: dict) -> dict[str, str]:
     for m, w in results["models"].items():
         hp = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}"
                        for k, v in w["hyper_parameters"].items())
-        lines.append(f"| {NAMES[m]} | models/{w['file']} | {w['bytes'] / 1024:.0f} KiB | "
+        lines.append(f"| {METHOD_LABELS[m]} | models/{w['file']} | {w['bytes'] / 1024:.0f} KiB | "
                      f"{w['support_vectors']} | {hp} | {w['rmse']:.3f} |")
     return {"shipped-models": "\n".join(lines)}

@@ -1,9 +1,13 @@
-"""matplotlib for the experiments' figures: no display needed, imported only when plotting."""
+"""matplotlib for the experiments' figures (no display needed, imported only when plotting) and
+the names figures and tables give the methods."""
 from __future__ import annotations
 
 from pathlib import Path
 
 SIM_LABEL = "simulated rig"     # in every figure title: these are statements about the simulator
+# how tables and figures name the methods (messages.METHODS)
+METHOD_LABELS = {"none": "no action", "vibrotactile": "vibrotactile", "e1": "E1", "e4": "E4",
+                 "e10": "E10", "e19": "E19", "injection": "injection (ours)"}
 
 
 def pyplot():

@@ -21,6 +21,7 @@ from incipient_slip import control
 from incipient_slip.errors import UsageError
 from incipient_slip.paths import repo_root
 
+from .plots import METHOD_LABELS, SIM_LABEL, pyplot, save
 from .runner import GraphRunner, RunSpec
 from .settings import Settings
 
@@ -31,8 +32,6 @@ RESULTS = "stab_results.json"       # in docs/figures/: the page's numbers, for 
 
 # the paper's column order
 TABLE_METHODS = ("none", "vibrotactile", "e1", "e4", "e10", "e19", "injection")
-METHOD_LABELS = {"none": "no action", "vibrotactile": "vibrotactile", "e1": "E1", "e4": "E4",
-                 "e10": "E10", "e19": "E19", "injection": "injection (ours)"}
 # the paper's Table (y and F_N at the last step; None where the paper gives none)
 PAPER_TABLE = {
     "none": {"success": None, "y": 2.48, "fn": 2.94, "steps": 450},
@@ -43,7 +42,6 @@ PAPER_TABLE = {
     "e19": {"success": 0.8, "y": 1.40, "fn": 6.24, "steps": 435},
     "injection": {"success": 1.0, "y": 1.38, "fn": 4.50, "steps": 450},
 }
-SIM_LABEL = "simulated rig"
 
 
 def add_arguments(parser) -> None:
@@ -210,14 +208,10 @@ def format_table_text(rows: dict[str, dict]) -> str:
 
 # --- figures ---------------------------------------------------------------------------------
 
-SIM_LABEL = "simulated rig"
-
 
 def plot_traces(results: dict[str, list[dict]], path: Path) -> None:
     """y and F_N over steps, every run of every method (one column per method)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     methods = [m for m in TABLE_METHODS if results.get(m)]
     fig, axes = plt.subplots(3, len(methods), figsize=(2.4 * len(methods), 6.6), sharex=True,
                              squeeze=False)
@@ -244,17 +238,12 @@ def plot_traces(results: dict[str, list[dict]], path: Path) -> None:
     axes[2, 0].set_ylabel("estimated s")
     fig.suptitle(f"Stabilization traces ({SIM_LABEL}; green success, red failure, gray fault; "
                  f"dashed: failure limits, s_d)", fontsize=9)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path)
 
 
 def plot_sweep(sweep: dict, path: Path) -> None:
     """Success rate, steps and final F_N against the target s_d, one line per method."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
     for m in TABLE_METHODS:
         if m not in sweep:
@@ -272,11 +261,7 @@ def plot_sweep(sweep: dict, path: Path) -> None:
     axes[2].axhline(control.SAFETY_LIMIT_KPA, color="k", ls="--", lw=0.7)
     axes[0].legend(fontsize=7)
     fig.suptitle(f"s_d sweep ({SIM_LABEL})", fontsize=10)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
+    save(fig, path)
 
 
 # --- the experiment --------------------------------------------------------------------------
