@@ -6,8 +6,14 @@ Each experiment module defines
 * `add_arguments(parser)`: its own command-line options (the shared ones are in `Settings`);
 * `run(settings) -> results`: does the work within the settings' budget and returns a dict that
   JSON can hold (figures are written while running, into `settings.figures`);
-* `render(results) -> {block_name: markdown}`: the generated parts of the docs page. The page's
-  prose is hand-written; `docs.write_blocks` puts each block between its markers.
+* `render(results) -> {block_name: markdown}`: the generated parts of the docs page, from the
+  results alone (so `--render-only` can redo them from results.json). The page's prose is
+  hand-written; `docs.write_blocks` puts each block between its markers;
+* optionally `RESULTS` (a file name in docs/figures/ that keeps the page's results in the
+  repository) and `SEED` (its default seed, when not 0).
+
+`slip` imports every experiment module to build its parser, so a module imports the simulator,
+scipy or scikit-learn inside `run()` and its helpers, not at the top.
 
 `slip reproduce NAME` runs one (`experiments.cli`); `slip reproduce --list` lists them.
 """
