@@ -51,7 +51,7 @@ def accuracy_vs_time() -> dict:
 def models() -> dict:
     return {"series": 10, "steps": 200, "max_train": 500, "grid_max": 300, "seed": 7,
             "after_slip": "drop", "elapsed_s": 30.0,
-            "models": {m: {"file": f"{m}.npz", "bytes": 2048, "support_vectors": 12,
+            "models": {m: {"file": f"models/{m}.npz", "bytes": 2048, "support_vectors": 12,
                            "hyper_parameters": {"C": 0.3, "kernel": "rbf"}, "rmse": 0.15, "top10": 0.3}
                        for m in METHODS}}
 

@@ -65,7 +65,7 @@ def run(settings: Settings) -> dict:
         r.model.header.pop("versions", None)
         path = save_model(r.model, out / f"{m}.npz")
         hp = r.model.header.get("hyper_parameters") or {}
-        written[m] = {"file": path.name, "bytes": path.stat().st_size,
+        written[m] = {"file": _shown(path), "bytes": path.stat().st_size,
                       "support_vectors": int(len(r.model.centers)) if r.model.kind == "kernel" else 0,
                       "hyper_parameters": hp, "rmse": float(r.scores.rmse.mean()),
                       "top10": float(r.scores.top10_rmse.mean())}
@@ -73,6 +73,15 @@ def run(settings: Settings) -> dict:
               f"top-10 % {written[m]['top10']:.3f}  {path}")
     return {**b, "seed": settings.seed, "after_slip": AFTER_SLIP, "models": written,
             "elapsed_s": time.perf_counter() - t0}
+
+
+def _shown(path: Path) -> str:
+    """Return `path` relative to the repository (models/e1.npz) when it is inside it."""
+    from incipient_slip.paths import repo_root
+    try:
+        return str(path.resolve().relative_to(repo_root()))
+    except ValueError:
+        return str(path)
 
 
 def render(results: dict) -> dict[str, str]:
@@ -85,6 +94,6 @@ def render(results: dict) -> dict[str, str]:
     for m, w in results["models"].items():
         hp = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}"
                        for k, v in w["hyper_parameters"].items())
-        lines.append(f"| {METHOD_LABELS[m]} | models/{w['file']} | {w['bytes'] / 1024:.0f} KiB | "
+        lines.append(f"| {METHOD_LABELS[m]} | {w['file']} | {w['bytes'] / 1024:.0f} KiB | "
                      f"{w['support_vectors']} | {hp} | {w['rmse']:.3f} |")
     return {"shipped-models": "\n".join(lines)}
