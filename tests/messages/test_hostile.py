@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from incipient_slip import messages as M
 from incipient_slip.graph.runtime import Node
 from incipient_slip.messages.codec import _validate_fields
-from incipient_slip.messages.fields import INT_RANGES, Array, Scalar, field_specs
+from incipient_slip.messages.fields import INT_RANGES, Array, field_specs
 
 from test_messages import any_message
 

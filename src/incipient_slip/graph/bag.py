@@ -397,7 +397,7 @@ def scan_bag(path: str | os.PathLike, damage: Damage | None = None,
     from mcap.exceptions import McapError
     from mcap.data_stream import ReadDataStream
     from mcap.opcode import Opcode
-    from mcap.records import Channel, Chunk, DataEnd, Footer, Message as McapMessage, Schema
+    from mcap.records import Channel, Chunk, Message as McapMessage, Schema
     from mcap.stream_reader import breakup_chunk
 
     path = os.fspath(path)

@@ -25,13 +25,12 @@ from typing import Callable
 import numpy as np
 
 from incipient_slip.graph.bag import BagError, BagWriter, bag_info, json_schema, read_bag
-from incipient_slip.messages import MESSAGE_TYPES, BiotacPac, Message
+from incipient_slip.messages import MESSAGE_TYPES, PAC_RATE_HZ, BiotacPac, Message
 
 __all__ = ["export_foxglove", "export_schema", "to_export_json", "raw_audio", "RAW_AUDIO_SCHEMA",
-           "ExportReport", "JS_SAFE_INT", "PAC_RATE_HZ"]
+           "ExportReport", "JS_SAFE_INT"]
 
 JS_SAFE_INT = (1 << 53) - 1     # the largest integer a JavaScript number holds exactly
-PAC_RATE_HZ = 2200              # BiotacPac: PAC_SAMPLES_PER_FRAME samples per 10 ms frame
 AUDIO_SUFFIX = "/audio"
 
 _TIME = {"type": "object", "title": "time",
