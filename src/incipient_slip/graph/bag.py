@@ -27,6 +27,7 @@ from io import BytesIO
 from typing import IO, Callable, Iterable, Iterator
 
 from incipient_slip.messages import MESSAGE_TYPES, Message, MessageError, decode_any, encode
+from incipient_slip.messages.schema import json_schema  # derived from the field declarations
 
 __all__ = ["BagError", "BagRecord", "BagWriter", "TopicInfo", "BagInfo", "Damage", "Recovery",
            "read_bag", "scan_bag", "bag_info", "recover", "json_schema", "FLUSH_S",
@@ -61,34 +62,6 @@ class BagRecord:
     def message(self) -> Message:
         """The decoded, validated message (MessageError if the body breaks the contract)."""
         return decode_any(self.body, self.topic)
-
-
-# --- schemas -------------------------------------------------------------------------------
-
-_JSON_TYPES = {"int": "integer", "float": "number", "bool": "boolean", "str": "string"}
-
-
-def json_schema(msg_type: type[Message]) -> dict:
-    """A JSON Schema (2020-12) of the msgpack map that carries `msg_type` on the wire."""
-    desc = msg_type.schema()
-    props = {"type": {"const": desc["type"]}, "v": {"const": desc["version"]}}
-    for name, spec in desc["fields"].items():
-        if "array" in spec:
-            props[name] = {
-                "type": "object",
-                "description": f"numpy array, dtype {spec['array']}, shape {spec['shape']}; "
-                               "data = raw little-endian bytes (msgpack bin)",
-                "properties": {"dtype": {"const": spec["array"]},
-                               "shape": {"type": "array", "items": {"type": "integer"}},
-                               "data": {"description": "msgpack bin"}},
-                "required": ["dtype", "shape", "data"],
-            }
-        else:
-            props[name] = {"type": _JSON_TYPES[spec["type"]]}
-    return {"$schema": "https://json-schema.org/draft/2020-12/schema",
-            "title": desc["type"], "description": desc["description"], "type": "object",
-            "properties": props, "required": list(props), "additionalProperties": False,
-            "x-incipient-slip": desc}
 
 
 # --- writing -------------------------------------------------------------------------------

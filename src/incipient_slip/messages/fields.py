@@ -330,8 +330,31 @@ class Message:
 
     @classmethod
     def schema(cls) -> dict:
-        """A JSON-able description of the type and its fields (written into MCAP schemas)."""
-        fields = {name: {"array": spec.dtype, "shape": list(spec.shape)} if isinstance(spec, Array)
-                  else {"type": spec.kind.__name__} for name, spec in field_specs(cls)}
+        """A JSON-able description of the type and every field's wire contract (the one source
+        of the JSON schema in recordings and of docs/messages.md)."""
         return {"type": cls.__name__, "version": cls.SCHEMA_VERSION, "topic": cls.TOPIC,
-                "description": cls.DESCRIPTION, "encoding": "msgpack", "fields": fields}
+                "description": cls.DESCRIPTION, "encoding": "msgpack",
+                "fields": {name: describe(spec) for name, spec in field_specs(cls)}}
+
+
+def describe(spec: Scalar | Array) -> dict:
+    """A JSON-able description of one field: wire type, bounds, unit, NaN rule, limits."""
+    if isinstance(spec, Array):
+        desc = {"array": spec.dtype, "shape": list(spec.shape)}
+    else:
+        desc = {"type": spec.kind.__name__, "wire": spec.wire}
+        if spec.low is not None:
+            desc["min"] = spec.low
+        if spec.high is not None:
+            desc["max"] = spec.high
+        if spec.kind is float:
+            desc["nan"] = not spec.finite
+        if spec.kind is str:
+            desc["max_bytes"] = spec.max_bytes
+        if spec.choices is not None:
+            desc["enum"] = list(spec.choices)
+    if spec.unit:
+        desc["unit"] = spec.unit
+    if spec.note:
+        desc["note"] = spec.note
+    return desc
