@@ -135,7 +135,7 @@ def _validate_fields(cls: type[Message], body: dict, topic: str) -> Message:
     that is wrong)."""
     specs = field_specs(cls)
     known = {name for name, _ in specs} | {"type", "v"}
-    unknown = sorted(map(repr, set(body) - known))
+    unknown = sorted(k if isinstance(k, str) and k else repr(k) for k in set(body) - known)
     if unknown:
         raise MessageError(topic, unknown[0], f"unknown field for {cls.__name__}")
     msg = object.__new__(cls)
