@@ -171,6 +171,27 @@ def test_wrong_containers_and_keys_are_refused(change):
         M.decode(pack(body), M.RunEvent)
 
 
+@pytest.mark.parametrize("body", [
+    b"\x91" * 100_000 + b"\xc0",                      # 100 000 nested arrays
+    b"\x81\xa1a" * 50_000 + b"\xc0",                  # 50 000 nested maps
+    b"\xdd\xff\xff\xff\xff",                           # an array claiming 2**32-1 items
+    b"\xd6\xff\x00\x00\x00\x01",                       # a msgpack timestamp instead of a map
+    b"\xc7\x05\xff" + b"\x00" * 5,                      # a malformed timestamp ext
+    pack({"type": "BiotacPac"}) + b"\xc0",             # trailing bytes after the map
+])
+def test_msgpack_oddities_are_message_errors(body):
+    with pytest.raises(M.MessageError) as info:
+        M.decode(body, M.BiotacPac)
+    assert info.value.field == "<body>"
+
+
+def test_an_ext_value_in_a_field_is_refused():
+    body = body_of(sample(M.BiotacPac))
+    body["stamp_ns"] = msgpack.Timestamp(1, 0)
+    with pytest.raises(M.MessageError, match="stamp_ns"):
+        M.decode(msgpack.packb(body, use_bin_type=True, datetime=False), M.BiotacPac)
+
+
 def test_size_limits_of_bodies_and_strings():
     with pytest.raises(M.MessageError, match="exceeds"):
         M.decode(b"\x00" * (M.MAX_BODY_BYTES + 1), M.BiotacPac)
