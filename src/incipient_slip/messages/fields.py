@@ -181,7 +181,8 @@ def check_new_array(topic: str, name: str, spec: Array, value) -> np.ndarray:
     """
     try:
         given = np.asarray(value)
-        arr = np.array(given, dtype=spec.dtype, order="C", copy=True)
+        with np.errstate(invalid="ignore", over="ignore"):     # a lossy cast is refused below
+            arr = np.array(given, dtype=spec.dtype, order="C", copy=True)
     except (TypeError, ValueError, OverflowError) as exc:
         raise MessageError(topic, name, f"not an array of {spec.dtype} ({exc})") from None
     _check_shape(topic, name, spec, list(arr.shape))
