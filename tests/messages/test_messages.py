@@ -1,6 +1,9 @@
 """The wire contract as properties: every type round-trips; bad bytes only raise MessageError."""
 from __future__ import annotations
 
+import ast
+from pathlib import Path
+
 import msgpack
 import numpy as np
 import pytest
@@ -153,3 +156,14 @@ def test_constructor_fast_path_and_general_path_agree_on_what_is_invalid():
         M.BiotacPac(pac_counts=np.zeros(22, dtype=np.int16), seq=-1)
     # a list or another dtype is converted by the general path, not refused
     assert M.BiotacPac(pac_counts=[1] * 22).pac_counts.dtype == np.dtype("<i2")
+
+
+def test_messages_import_nothing_above_them():
+    # The wire contract is the bottom layer: the graph, nodes and models build on it.
+    for path in Path(M.__file__).parent.glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            for name in names:
+                assert not name.startswith("incipient_slip.") or name.startswith("incipient_slip.messages"), (
+                    f"{path.name} imports {name}")
