@@ -9,11 +9,14 @@ the committed page differs from what this writes.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
+import msgpack
+
 from incipient_slip.graph import discovery
-from incipient_slip.messages import DEFAULT_TOPICS, MESSAGE_TYPES
+from incipient_slip.messages import DEFAULT_TOPICS, MESSAGE_TYPES, ActuatorState, encode, topic_frame
 from incipient_slip.messages.fields import INT_RANGES, MAX_BODY_BYTES, MAX_MAP, MAX_STRING
 
 __all__ = ["render", "main", "ANNOUNCEMENT_KEYS"]
@@ -77,6 +80,17 @@ def _topics() -> list[str]:
     return out
 
 
+def _example() -> str:
+    """A worked example: one message, its two frames in hex and the map the body holds."""
+    msg = ActuatorState(position_mm=1.5, step_index=3, stamp_ns=1_700_000_000_000_000_000, seq=7)
+    body = encode(msg)
+    hexed = body.hex(" ")
+    rows = "\n".join(hexed[i:i + 96].strip() for i in range(0, len(hexed), 96))
+    return (f"Example: `{msg!r}` travels as\n\n```\nframe 1 (topic): {topic_frame(msg.TOPIC).hex(' ')}\n"
+            f"frame 2 (body, {len(body)} bytes):\n{rows}\n```\n\nand the body holds the map\n"
+            f"`{json.dumps(msgpack.unpackb(body))}`.")
+
+
 def render() -> str:
     """The text of docs/messages.md."""
     widths = "\n".join(f"| {w} | {lo} | {hi} |" for w, (lo, hi) in INT_RANGES.items())
@@ -115,6 +129,8 @@ The map holds exactly these keys, no more and no fewer (there are no optional fi
 Map keys are str. A float field accepts a msgpack float 64 or float 32, or an int (converted to
 float 64); an int field accepts only an int, never a bool or a float (`3.0` is refused); a bool
 field only `true` or `false` (not 0 or 1).
+
+{_example()}
 
 ### Integer widths
 
