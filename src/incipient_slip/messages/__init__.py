@@ -11,8 +11,9 @@ from incipient_slip.messages.codec import (
 from incipient_slip.messages.fields import MAX_BODY_BYTES, MAX_STRING, Message, MessageError
 from incipient_slip.messages.types import (
     DEFAULT_TOPICS, ELECTRODE_COUNT, MESSAGE_TYPES, METHODS, MOCAP_RATE_HZ, PAC_RATE_HZ,
-    PAC_SAMPLES_PER_FRAME, PERIOD_NS, RUN_EVENT_KINDS, SLOW_RATE_HZ, ActuatorCommand, ActuatorState, BiotacPac, BiotacSlow, GripCommand,
-    Heartbeat, ObjectPose, PztCommand, PztState, RobotState, RunEvent, SlipEstimate,
+    PAC_SAMPLES_PER_FRAME, PERIOD_NS, RUN_EVENT_KINDS, SLOW_RATE_HZ, ActuatorCommand,
+    ActuatorState, BiotacPac, BiotacSlow, GripCommand, Heartbeat, ObjectPose, PztCommand,
+    PztState, RobotState, RunEvent, SlipEstimate,
 )
 
 __all__ = [
