@@ -148,7 +148,8 @@ void loop() {
   run_slot(kFrameSchedule[slot_in_frame], replies + slot_in_frame * 2 * N_BIOTACS);
   ++slot_index;
   if (slot_in_frame == kSlotsPerFrame - 1) {
-    const uint32_t frame_start_us = slot_due_us(slot_index - kSlotsPerFrame) - stream_start_us;
+    // Device time: the bridge's microsecond clock (since boot) at the frame's first command.
+    const uint32_t frame_start_us = slot_due_us(slot_index - kSlotsPerFrame);
     send_frame(frame_start_us, pending_status);
     pending_status = 0;
   }

@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from incipient_slip.messages import BIOTAC_CHANNELS, BIOTAC_ERROR_WORDS
+
 # --- timing --------------------------------------------------------------------------------
 
 SLOT_RATE_HZ = 4400
@@ -86,8 +88,8 @@ FRAME_CHANNELS: tuple[str, ...] = tuple(
 FRAME_SCHEDULE: bytes = bytes(command_byte(c) for c in FRAME_CHANNELS)
 assert len(FRAME_SCHEDULE) == SLOTS_PER_FRAME
 
-# Channels as the reader reports them (fault counters are arrays in this order).
-REPORTED_CHANNELS: tuple[str, ...] = ("PAC", "PDC", "TAC", "TDC") + tuple(f"E{i:02d}" for i in range(1, 20))
+# Channels as the reader reports them (fault counters are arrays in this order; the wire contract).
+REPORTED_CHANNELS: tuple[str, ...] = BIOTAC_CHANNELS
 _REPORTED_INDEX = {name: i for i, name in enumerate(REPORTED_CHANNELS)}
 SLOT_REPORTED = np.array([_REPORTED_INDEX[c] for c in FRAME_CHANNELS], dtype=np.intp)
 PAC_SLOTS = np.array([s for s, c in enumerate(FRAME_CHANNELS) if c == "PAC"], dtype=np.intp)
@@ -106,7 +108,8 @@ ERROR_WORDS: dict[int, str] = {
     0xA557: "write_error",                  # "EW"
 }
 ERROR_WORD_OF = {name: word for word, name in ERROR_WORDS.items()}
-ERROR_NAMES: tuple[str, ...] = tuple(ERROR_WORDS.values())
+ERROR_NAMES: tuple[str, ...] = BIOTAC_ERROR_WORDS
+assert tuple(ERROR_WORDS.values()) == ERROR_NAMES
 
 
 def encode_word(value: int) -> bytes:
@@ -565,3 +568,131 @@ class Tare:
     def pdc_tare_counts(self) -> int:
         """Return the P_DC baseline, counts (0 until a tare is done)."""
         return int(round(self.pdc_mean)) if self.state == "done" else 0
+
+
+# --- the host side of the bridge ---------------------------------------------------------
+
+LINK_STATES = ("disconnected", "handshake", "no_sensor", "streaming")
+
+
+def open_serial_port(port: str):
+    """Return the bridge's serial port opened non-blocking (pyserial; USB-CDC ignores the baud rate)."""
+    import serial        # pyserial: the [hardware] extra, also installed for the tests
+    return serial.Serial(port, baudrate=115200, timeout=0, write_timeout=0.5)
+
+
+class BridgeLink:
+    """The bridge on a serial port: handshake, presence check, streaming, unplug and reconnect.
+
+    Non-blocking: `poll()` does what is due now and returns the readings completed since the
+    last call; `events` collects (level, text) per state change for the node to log, level
+    "info" or "warn". A sensor is
+    present when its serial number starts with "BT" (SynTouch's check). Failures to open, a
+    bridge that does not answer, a missing sensor, an unplug (the port's read fails) or a stream
+    that stalls close the port and retry after a back-off that doubles up to `max_backoff_s`.
+    """
+
+    def __init__(self, port: str, sensor: int = 0, open_port=open_serial_port,
+                 min_backoff_s: float = 0.2, max_backoff_s: float = 5.0,
+                 handshake_timeout_s: float = 2.0, stall_timeout_s: float = 1.0, clock=None):
+        import time
+        self.port, self.sensor, self.open_port = port, sensor, open_port
+        self.min_backoff_s, self.max_backoff_s = min_backoff_s, max_backoff_s
+        self.handshake_timeout_s, self.stall_timeout_s = handshake_timeout_s, stall_timeout_s
+        self.clock = clock or time.monotonic
+        self.stream = BridgeStream(sensor)
+        self.state = "disconnected"
+        self.events: list[tuple[str, str]] = []
+        self.reconnects = 0
+        self.connections = 0           # successful handshakes; a new one restarts the frame index
+        self._serial = None
+        self._backoff = min_backoff_s
+        self._next_try = 0.0
+        self._deadline = 0.0
+        self._last_data = 0.0
+
+    @property
+    def properties(self) -> dict:
+        return self.stream.properties
+
+    def poll(self) -> list[Reading]:
+        """Return the readings received now; advances the link's state machine."""
+        now = self.clock()
+        if self.state in ("disconnected", "no_sensor"):
+            if now >= self._next_try:
+                self._connect(now)
+            return []
+        try:
+            data = self._serial.read(65536)
+        except Exception as exc:        # pyserial raises SerialException or OSError (EIO) on unplug
+            self._drop(f"bridge on {self.port} unplugged or failed ({exc}); reconnecting", now)
+            self.reconnects += 1
+            return []
+        if data:
+            self._last_data = now
+        readings = self.stream.feed(data) if data else []
+        if self.state == "handshake":
+            self._check_handshake(now)
+            return []
+        if now - self._last_data > self.stall_timeout_s:
+            self._drop(f"no data from the bridge on {self.port} for {self.stall_timeout_s:g} s; reconnecting", now)
+            self.reconnects += 1
+        return readings
+
+    def close(self) -> None:
+        """Stops the bridge's stream (best effort) and closes the port."""
+        if self._serial is not None:
+            try:
+                self._serial.write(CMD_STOP)
+            except Exception:
+                pass
+            try:
+                self._serial.close()
+            except Exception:
+                pass
+        self._serial = None
+
+    def _connect(self, now: float) -> None:
+        try:
+            self._serial = self.open_port(self.port)
+            self._serial.write(CMD_STOP + CMD_PROPERTIES)
+        except Exception as exc:
+            self._serial = None
+            self._retry_later(f"cannot open the bridge on {self.port} ({exc})", now)
+            return
+        self.stream.restart()
+        self.stream.properties.clear()
+        self.state = "handshake"
+        self._deadline = now + self.handshake_timeout_s
+
+    def _check_handshake(self, now: float) -> None:
+        props = self.stream.properties
+        if all(name in props for name in BRIDGE_PROPERTIES):
+            serial_number = str(props["serial_number"])
+            if not serial_number.startswith("BT"):
+                self.close()
+                self.state = "no_sensor"
+                self._retry_later(f"no BioTac on sensor slot {self.sensor} of the bridge on {self.port} "
+                                  f"(serial number {serial_number!r} does not start with 'BT'): "
+                                  f"check the sensor's cable and the chip select", now)
+                return
+            self._serial.write(CMD_START)
+            self.state = "streaming"
+            self.connections += 1
+            self._last_data = now
+            self._backoff = self.min_backoff_s
+            self.events.append(("info", f"BioTac {serial_number} (firmware {props['firmware_version']}) on "
+                               f"{self.port}: streaming"))
+        elif now > self._deadline:
+            self._drop(f"the bridge on {self.port} did not answer the property request within "
+                       f"{self.handshake_timeout_s:g} s: is the bridge firmware flashed and the port right?", now)
+
+    def _drop(self, why: str, now: float) -> None:
+        self.close()
+        self.state = "disconnected"
+        self._retry_later(why, now)
+
+    def _retry_later(self, why: str, now: float) -> None:
+        self.events.append(("warn", f"{why}; next attempt in {self._backoff:.1f} s"))
+        self._next_try = now + self._backoff
+        self._backoff = min(self._backoff * 2, self.max_backoff_s)
