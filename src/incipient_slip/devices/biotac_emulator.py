@@ -15,7 +15,8 @@ Three layers, each speaking what the real part speaks:
 * `PtyBridgeServer`: the USB-CDC port. A pty whose slave is reachable through a stable symlink
   (like /dev/serial/by-id), host commands `S`, `X`, `?`; "real time" writes a frame every 10 ms
   of wall time and drops frames the host does not take (as the firmware does), "lock-step"
-  writes the next frame as soon as the last one is taken (device time is simulated time).
+  writes the next frame as soon as the pty has taken the last one, so its buffer back-pressures
+  the emulator and nothing is dropped (device time is simulated time).
   Unplug closes the pty (the host's reads fail with EIO) and replugs a new one after a delay.
 
 `RigSignals` steps the simulator's rig (`sim.Rig`) one 500 ms period at a time and serves its
@@ -26,11 +27,14 @@ from __future__ import annotations
 
 import argparse
 import errno
+import fcntl
 import json
 import os
 import select
 import signal
+import struct
 import sys
+import termios
 import threading
 import time
 import tty
@@ -304,15 +308,20 @@ class EmulatedBridge:
 class PtyBridgeServer:
     """Serves an EmulatedBridge on a pty reachable at `link` (a symlink to the pty's slave)."""
 
-    BACKLOG_BYTES = 4096     # bytes the emulated USB queue holds before frames are dropped (real time)
+    # Bytes unread by the host beyond which frames are dropped (real time), as the firmware drops
+    # what USB cannot take. 4095 is also the most the pty's line discipline reports unread.
+    BACKLOG_BYTES = 4095
 
     def __init__(self, bridge: EmulatedBridge, link: str | Path, lockstep: bool = False,
-                 replug_after_s: float = 1.0, served_path: str | Path | None = None):
+                 replug_after_s: float = 1.0, served_path: str | Path | None = None,
+                 max_frames: int = 0):
         self.bridge, self.link, self.lockstep = bridge, Path(link), lockstep
         self.replug_after_s = replug_after_s
+        self.max_frames = max_frames     # frames to stream in all (0: no limit), then stay idle
         self.served_file = open(served_path, "w") if served_path else None
         self.streaming = False
         self.unplugs = 0
+        self.tx_dropped = 0      # frames dropped because the host did not read (real time)
         self._stop = threading.Event()
         self._master = self._slave = -1
         self._out = bytearray()
@@ -334,13 +343,16 @@ class PtyBridgeServer:
 
     def unplug(self) -> None:
         """Removes the link and closes the pty: the host's next read fails with EIO."""
+        self._close_pty()
+        self.unplugs += 1
+
+    def _close_pty(self) -> None:
         if self.link.is_symlink():
             self.link.unlink()
         for fd in (self._master, self._slave):
             if fd >= 0:
                 os.close(fd)
         self._master = self._slave = -1
-        self.unplugs += 1
 
     def start(self) -> "PtyBridgeServer":
         """Plugs in and serves on a thread; returns self."""
@@ -355,7 +367,7 @@ class PtyBridgeServer:
         if self._thread is not None:
             self._thread.join(5.0)
         if self._master >= 0:
-            self.unplug()
+            self._close_pty()
         if self.served_file:
             self.served_file.close()
 
@@ -383,6 +395,10 @@ class PtyBridgeServer:
                 raise
             del self._out[:n]
 
+    def _unread(self) -> int:
+        """Bytes written to the port that the host has not read yet."""
+        return struct.unpack("i", fcntl.ioctl(self._slave, termios.FIONREAD, b"\0\0\0\0"))[0]
+
     def serve(self) -> None:
         """Runs until stop(): host commands, frames on schedule, faults, unplug/replug."""
         self._next_due = time.monotonic()
@@ -405,7 +421,7 @@ class PtyBridgeServer:
                         raise
                     time.sleep(0.01)
             self._flush()
-            if not self.streaming:
+            if not self.streaming or (self.max_frames and len(self.bridge.served) >= self.max_frames):
                 continue
             if self.lockstep:
                 if self._out:
@@ -427,8 +443,9 @@ class PtyBridgeServer:
                 self.served_file.flush()
             if not self.lockstep:
                 self._next_due += bt.FRAME_US / 1e6
-                if len(self._out) > self.BACKLOG_BYTES:
+                if len(self._out) + self._unread() >= self.BACKLOG_BYTES:
                     self.bridge.note_tx_dropped()   # the host is not reading: drop, as the firmware does
+                    self.tx_dropped += 1
                     continue
             for frame in frames:
                 self._out += frame
@@ -445,7 +462,8 @@ def build(args) -> PtyBridgeServer:
         slaves.append(BiotacSpiSlave(signals, serial=f"BT-EMU-{j + 1:04d}", present=present))
     faults = FaultPlan.parse(args.faults, args.fault_rate, args.seed)
     return PtyBridgeServer(EmulatedBridge(slaves, faults), args.link, lockstep=args.lockstep,
-                           replug_after_s=args.replug_after_s, served_path=args.served)
+                           replug_after_s=args.replug_after_s, served_path=args.served,
+                           max_frames=args.frames)
 
 
 def make_parser() -> argparse.ArgumentParser:
@@ -453,7 +471,8 @@ def make_parser() -> argparse.ArgumentParser:
                                 description="An emulated BioTac bridge on a pty (see docs/hardware.md).")
     p.add_argument("--link", required=True, help="path of the symlink to the pty (the reader's port:=)")
     p.add_argument("--lockstep", action="store_true",
-                   help="write each frame as soon as the last was read (default: real time, 100 frames/s)")
+                   help="write frames as fast as the port takes them, none dropped "
+                        "(default: real time, 100 frames/s)")
     p.add_argument("--faults", default="", help=f"KIND@FRAME,... with KIND in {', '.join(FAULT_KINDS)}")
     p.add_argument("--fault-rate", type=float, default=0.0, help="random data faults per frame, 0..1")
     p.add_argument("--missing-sensor", action="store_true", help="no BioTac on the bus (serial reads 0xFF)")
@@ -464,6 +483,7 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--normal-force-kpa", type=float, default=3.0, help="constant F_N of the simulated contact")
     p.add_argument("--units", default="", help="units YAML (pac_zero_counts offsets P_AC)")
     p.add_argument("--replug-after-s", type=float, default=1.0, help="seconds an unplug lasts")
+    p.add_argument("--frames", type=int, default=0, help="stream this many frames, then stay silent (0: forever)")
     p.add_argument("--served", default=None, help="write the values served per frame as JSON lines")
     return p
 

@@ -40,6 +40,8 @@ class BiotacReader(Node):
         "poll_s": Param(0.005, lo=0.001, hi=0.05, help="how often the port is read, s"),
         "max_backoff_s": Param(5.0, lo=0.1, hi=60.0, help="longest wait between reconnection attempts, s"),
         "stall_timeout_s": Param(1.0, lo=0.05, hi=60.0, help="no data this long while streaming: reconnect"),
+        "wait_subscribers": Param(0, lo=0, hi=100, help="open the bridge only once this many subscribers "
+                                  "read /biotac/pac (recordings and tests lose no first frame)"),
     }
     INPUTS = {"/biotac/tare": BiotacTare}
     # /heartbeat: the runtime's own publisher, refused by the INPUTS/OUTPUTS check unless declared
@@ -70,6 +72,7 @@ class BiotacReader(Node):
         self.last_seq = -1
         self.connection = 0
         self.tare_state = "none"
+        self.waiting = self.param("wait_subscribers") > 0
 
     def on_tare(self, msg: BiotacTare) -> None:
         self.tare.frames = int(round(msg.duration_s * bt.FRAME_RATE_HZ))
@@ -77,6 +80,10 @@ class BiotacReader(Node):
         self.log(f"tare requested: keep the finger untouched for {msg.duration_s:g} s")
 
     def poll(self) -> None:
+        if self.waiting:
+            if self.pac_pub.subscriber_count() < self.param("wait_subscribers"):
+                return
+            self.waiting = False
         state = self.link.state
         readings = self.link.poll()
         for level, text in self.link.events:
@@ -85,7 +92,8 @@ class BiotacReader(Node):
         if self.link.connections != self.connection:     # a new connection: re-anchor the clock
             self.connection = self.link.connections
             self.anchor_ns = time.time_ns()
-            self.seq_base = self.last_seq + 2             # one seq left out marks the discontinuity
+            # after a reconnection one seq is left out, so subscribers see the discontinuity
+            self.seq_base = 0 if self.last_seq < 0 else self.last_seq + 2
             if self.param("tare_on_start") and self.tare.state == "none":
                 self.tare.start()
         for r in readings:
