@@ -572,7 +572,6 @@ class Tare:
 
 # --- the host side of the bridge ---------------------------------------------------------
 
-LINK_STATES = ("disconnected", "handshake", "no_sensor", "streaming")
 
 
 def open_serial_port(port: str):

@@ -10,10 +10,10 @@ from incipient_slip.messages.codec import (
 )
 from incipient_slip.messages.fields import MAX_BODY_BYTES, MAX_STRING, Message, MessageError
 from incipient_slip.messages.types import (
-    DEFAULT_TOPICS, ELECTRODE_COUNT, MESSAGE_TYPES, METHODS, MOCAP_RATE_HZ, PAC_RATE_HZ,
-    PAC_SAMPLES_PER_FRAME, PERIOD_NS, RUN_EVENT_KINDS, SLOW_RATE_HZ, ActuatorCommand,
-    ActuatorState, BiotacPac, BiotacSlow, GripCommand, Heartbeat, ObjectPose, PztCommand,
-    PztState, RobotState, RunEvent, SlipEstimate,
+    BIOTAC_CHANNELS, BIOTAC_ERROR_WORDS, DEFAULT_TOPICS, ELECTRODE_COUNT, MESSAGE_TYPES, METHODS,
+    MOCAP_RATE_HZ, PAC_RATE_HZ, PAC_SAMPLES_PER_FRAME, PERIOD_NS, RUN_EVENT_KINDS, SLOW_RATE_HZ,
+    ActuatorCommand, ActuatorState, BiotacPac, BiotacSlow, BiotacStatus, BiotacTare, GripCommand,
+    Heartbeat, ObjectPose, PztCommand, PztOutput, PztState, RobotState, RunEvent, SlipEstimate,
 )
 
 __all__ = [
@@ -23,4 +23,5 @@ __all__ = [
     "ActuatorState", "GripCommand", "RobotState", "SlipEstimate", "RunEvent", "Heartbeat",
     "PAC_SAMPLES_PER_FRAME", "ELECTRODE_COUNT", "METHODS", "RUN_EVENT_KINDS",
     "PERIOD_NS", "PAC_RATE_HZ", "SLOW_RATE_HZ", "MOCAP_RATE_HZ",
+    "BiotacStatus", "BiotacTare", "PztOutput", "BIOTAC_CHANNELS", "BIOTAC_ERROR_WORDS",
 ]

@@ -23,6 +23,17 @@ STEP_LIMIT = (1 << 32) - 1      # steps and periods fit a uint32 (68 years of pe
 METHODS = ("injection", "vibrotactile", "e19", "e10", "e4", "e1", "none")
 RUN_EVENT_KINDS = ("start", "step", "success", "failure", "fault", "end")
 _NO_PERIOD = "-1: not tied to a period"
+# The BioTac reader's per-channel fault counters follow BIOTAC_CHANNELS; its error-word counts
+# follow BIOTAC_ERROR_WORDS (the sensor's 0xA5xx replies, devices/biotac.py).
+BIOTAC_CHANNELS = ("PAC", "PDC", "TAC", "TDC") + tuple(f"E{i:02d}" for i in range(1, 20))
+BIOTAC_ERROR_WORDS = ("parity_error", "unknown_command", "insufficient_delay", "insufficient_sampling_delay",
+                      "channel_not_recognized", "nothing_to_resend", "read_only", "write_error")
+BIOTAC_LINK_STATES = ("disconnected", "handshake", "no_sensor", "streaming")
+TARE_STATES = ("none", "collecting", "done", "refused")
+
+
+def _counts(n: int, note: str):
+    return array("<u4", (n,), note=note, default_factory=lambda: np.zeros(n, "<u4"))
 
 
 @dataclass(frozen=True, eq=False)
@@ -51,6 +62,44 @@ class BiotacSlow(Message):
 
 
 @dataclass(frozen=True, eq=False)
+class BiotacStatus(Message):
+    TOPIC: ClassVar[str] = "/biotac/status"
+    DESCRIPTION: ClassVar[str] = ("BioTac reader health: link state, sensor identity, tare, and every "
+                                  "fault counted since the reader started")
+    state: str = text("disconnected", choices=BIOTAC_LINK_STATES)
+    port: str = text("")
+    serial_number: str = text("")
+    firmware_version: str = text("")
+    frames_ok: int = integer("uint64")
+    frames_dropped: int = integer("uint64", note="missing by device time, whatever the cause")
+    frames_repeated: int = integer("uint64")
+    counter_jumps: int = integer("uint64")
+    crc_errors: int = integer("uint64")
+    header_errors: int = integer("uint64")
+    bytes_skipped: int = integer("uint64")
+    pattern_mismatches: int = integer("uint64", note="frames of another slot schedule, refused")
+    bridge_overruns: int = integer("uint64")
+    bridge_tx_dropped: int = integer("uint64")
+    pac_frames_refused: int = integer("uint64")
+    slow_frames_refused: int = integer("uint64")
+    reconnects: int = integer("uint64")
+    parity_errors: np.ndarray = _counts(len(BIOTAC_CHANNELS), "per channel, BIOTAC_CHANNELS order")
+    error_words: np.ndarray = _counts(len(BIOTAC_CHANNELS), "per channel, BIOTAC_CHANNELS order")
+    error_word_kinds: np.ndarray = _counts(len(BIOTAC_ERROR_WORDS), "per kind, BIOTAC_ERROR_WORDS order")
+    last_error_word: str = text("")
+    tare_state: str = text("none", choices=TARE_STATES)
+    touching: bool = flag(False)
+    detail: str = text("")
+
+
+@dataclass(frozen=True, eq=False)
+class BiotacTare(Message):
+    TOPIC: ClassVar[str] = "/biotac/tare"
+    DESCRIPTION: ClassVar[str] = "Request: tare the BioTac over duration_s untouched (mean and variance)"
+    duration_s: float = real(3.0, unit="s", low=0.1, high=60.0)
+
+
+@dataclass(frozen=True, eq=False)
 class PztCommand(Message):
     TOPIC: ClassVar[str] = "/pzt/command"
     DESCRIPTION: ClassVar[str] = "Start/stop the PZT white-noise injection at intensity I dB"
@@ -66,6 +115,16 @@ class PztState(Message):
     intensity_db: float = real(0.0, unit="dB", low=-120.0, high=20.0)
     band_low_hz: float = real(10.0, unit="Hz", low=0.0)
     band_high_hz: float = real(1100.0, unit="Hz", low=0.0)
+
+
+@dataclass(frozen=True, eq=False)
+class PztOutput(Message):
+    TOPIC: ClassVar[str] = "/pzt/output"
+    DESCRIPTION: ClassVar[str] = "PZT output health: backend, present RMS, underflows and clipped samples"
+    backend: str = text("")
+    output_rms: float = real(0.0, unit="full scale", low=0.0)
+    underflows: int = integer("uint64")
+    clipped_samples: int = integer("uint64")
 
 
 @dataclass(frozen=True, eq=False)
@@ -160,7 +219,7 @@ class Heartbeat(Message):
 
 MESSAGE_TYPES: dict[str, type[Message]] = {
     cls.__name__: cls for cls in (
-        BiotacPac, BiotacSlow, PztCommand, PztState, ObjectPose, ActuatorCommand, ActuatorState,
+        BiotacPac, BiotacSlow, BiotacStatus, BiotacTare, PztCommand, PztState, PztOutput, ObjectPose, ActuatorCommand, ActuatorState,
         GripCommand, RobotState, SlipEstimate, RunEvent, Heartbeat)
 }
 DEFAULT_TOPICS: dict[str, type[Message]] = {cls.TOPIC: cls for cls in MESSAGE_TYPES.values()}
