@@ -112,6 +112,7 @@ def test_reader_reports_a_missing_sensor(graph, tmp_path):
 @pytest.mark.parametrize("argv, message", [
     ([], "parameter port is required"),
     (["port:=/dev/null", "sensor:=7"], "sensor"),
+    (["port:=/dev/null", "units:=/nonexistent/units.yaml"], "cannot read the BioTac units file"),
 ])
 def test_reader_refuses_bad_parameters_in_one_line(argv, message):
     proc = subprocess.run([sys.executable, "-m", "incipient_slip.nodes.biotac_reader", *argv],

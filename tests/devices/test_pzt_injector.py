@@ -151,3 +151,17 @@ def test_node_ramps_to_zero_when_the_heartbeat_stops_and_on_shutdown(graph, tmp_
     on = np.flatnonzero(np.abs(x) > 0)
     assert len(on) > fs * 0.3                        # it did play
     assert np.all(x[on[-1] + 1:] == 0.0) and len(x) > on[-1] + 1
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["backend:=speaker"], "backend"),
+    (["backend:=null", "ramp_s:=0.2"], "ramp_s"),
+    (["backend:=null", "band_high_hz:=30000", "sample_rate_hz:=48000"], "band"),
+])
+def test_node_refuses_bad_parameters_in_one_line(argv, message):
+    import subprocess
+    import sys
+    proc = subprocess.run([sys.executable, "-m", "incipient_slip.nodes.pzt_injector", *argv],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert message in proc.stderr and len(proc.stderr.strip().splitlines()) == 1

@@ -21,6 +21,7 @@ from __future__ import annotations
 import binascii
 import math
 import struct
+import time
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
@@ -593,12 +594,11 @@ class BridgeLink:
 
     def __init__(self, port: str, sensor: int = 0, open_port=open_serial_port,
                  min_backoff_s: float = 0.2, max_backoff_s: float = 5.0,
-                 handshake_timeout_s: float = 2.0, stall_timeout_s: float = 1.0, clock=None):
-        import time
+                 handshake_timeout_s: float = 2.0, stall_timeout_s: float = 1.0, clock=time.monotonic):
         self.port, self.sensor, self.open_port = port, sensor, open_port
         self.min_backoff_s, self.max_backoff_s = min_backoff_s, max_backoff_s
         self.handshake_timeout_s, self.stall_timeout_s = handshake_timeout_s, stall_timeout_s
-        self.clock = clock or time.monotonic
+        self.clock = clock
         self.stream = BridgeStream(sensor)
         self.state = "disconnected"
         self.events: list[tuple[str, str]] = []

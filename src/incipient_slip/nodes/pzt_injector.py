@@ -84,8 +84,8 @@ class PztInjector(Node):
         if msg.node != self.name or msg.pid != os.getpid():
             self.last_alive = time.monotonic()
 
-    def pump(self, now_s: float | None = None) -> None:
-        silent, noisy = self.pacer.blocks_due(time.monotonic() if now_s is None else now_s)
+    def pump(self) -> None:
+        silent, noisy = self.pacer.blocks_due(time.monotonic())
         if silent:
             self.warn(f"output underflow: {silent} blocks of silence (the node fell behind)", throttle_s=1.0)
             self.output.write(np.zeros(silent * self.block, dtype=np.float32))
