@@ -155,8 +155,8 @@ def test_node_ramps_to_zero_when_the_heartbeat_stops_and_on_shutdown(graph, tmp_
 
 @pytest.mark.parametrize("argv, message", [
     (["backend:=speaker"], "backend"),
-    (["backend:=null", "ramp_s:=0.2"], "ramp_s"),
-    (["backend:=null", "band_high_hz:=30000", "sample_rate_hz:=48000"], "band"),
+    (["backend:=none", "ramp_s:=0.2"], "ramp_s"),
+    (["backend:=none", "band_high_hz:=30000", "sample_rate_hz:=48000"], "band"),
 ])
 def test_node_refuses_bad_parameters_in_one_line(argv, message):
     import subprocess

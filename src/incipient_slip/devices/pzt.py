@@ -11,7 +11,8 @@ units (±1.0 = the sound card's full scale).
 
 Backends: `SoundDeviceBackend` (PortAudio through `sounddevice`, the `[hardware]` extra; the card
 pulls blocks in its callback and reports underflows), `FileBackend` (a WAV file paced by an
-injected clock, for tests and dry runs: a file has no clock of its own) and `NullBackend`.
+injected clock, for tests and dry runs: a file has no clock of its own) and `NullBackend`
+(backend `none`: no output).
 """
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from scipy import signal
 
-BACKENDS = ("sounddevice", "file", "null")
+BACKENDS = ("sounddevice", "file", "none")
 
 
 class Injector:
@@ -92,7 +93,7 @@ class Injector:
 class NullBackend:
     """Discards the samples (a dry run of the node without an output)."""
 
-    name = "null"
+    name = "none"
     pulls = False
 
     def write(self, samples: np.ndarray) -> None:
@@ -165,7 +166,7 @@ def read_wav(path: str | Path) -> tuple[np.ndarray, int]:
 
 
 class Pacer:
-    """Paces a push backend (file, null) by a clock, as a sound card's buffer would.
+    """Paces a push backend (file, none) by a clock, as a sound card's buffer would.
 
     `blocks_due(now_s)` returns (silent, noisy): the blocks to write now so that `buffer_blocks`
     stay queued ahead of the sink, which consumes `fs_hz` samples per second from the first call.

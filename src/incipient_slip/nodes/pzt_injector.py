@@ -6,7 +6,7 @@
 The signal is `devices.pzt.Injector`'s: Gaussian noise through a 10–1100 Hz band-pass with
 carried filter state, RMS `rated_rms * 10**(I/20)` (0 dB = the amplifier's rated input), hard
 clip at `clip_level`, a `ramp_s` ramp on every start, stop and intensity change. The sound card
-pulls blocks itself; the file and null backends are paced by the monotonic clock (`Pacer`),
+pulls blocks itself; the file and none backends are paced by the monotonic clock (`Pacer`),
 which counts underflows when the node falls behind. When no other node's heartbeat (nor a
 command) has arrived for `heartbeat_timeout_s`, the output ramps to zero and stays off until
 the next command. On shutdown it ramps to zero before closing the output.
