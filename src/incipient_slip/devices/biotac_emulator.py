@@ -19,6 +19,9 @@ Three layers, each speaking what the real part speaks:
   the emulator and nothing is dropped (device time is simulated time).
   Unplug closes the pty (the host's reads fail with EIO) and replugs a new one after a delay.
 
+`FakeCheetah` is the same sensors behind a fake of Total Phase's `cheetah_py` (the queue and
+batch calls the Cheetah backend uses), for the reader's optional Cheetah backend.
+
 `RigSignals` steps the simulator's rig (`sim.Rig`) one 500 ms period at a time and serves its
 raw counts, so the emulated sensor feels the simulated contact. Every frame's served values are
 kept (`--served FILE` writes them as JSON lines) so tests can check the reader's output exactly.
@@ -116,10 +119,12 @@ class BiotacSpiSlave:
                       bt.PROPERTIES["flex_version"]: flex.encode() + b"\0",
                       bt.PROPERTIES["cpu_speed"]: cpu_speed.to_bytes(2, "big")}
         self.sampled: int | None = None      # the value of the last sampling command
+        self.history: list[int] | None = None    # a list: every sampled value is appended (tests)
         self._word: bytes | None = None      # the reply waiting to be clocked out
         self._ready_ns = 0
         self._last_word: bytes | None = None
         self._prop = b""
+        self._shifting = b""                 # the rest of a word being clocked out byte by byte
 
     @staticmethod
     def _error(name: str) -> bytes:
@@ -130,6 +135,7 @@ class BiotacSpiSlave:
         if not self.present:
             return
         self._prop = b""
+        self._shifting = b""
         self.sampled = None
         self._ready_ns = t_ns + bt.AFTER_COMMAND_DELAY_NS
         if not bt.ODD_PARITY[cmd]:
@@ -145,6 +151,8 @@ class BiotacSpiSlave:
             name = bt.CHANNEL_OF_INDEX.get(bt.channel_of_command(cmd))
             if name in SAMPLED:
                 self.sampled = self.signals.sample(name, t_ns)
+                if self.history is not None:
+                    self.history.append(self.sampled)
                 self._word = bt.encode_word(self.sampled)
             else:
                 self._word = self._error("channel_not_recognized")
@@ -162,6 +170,17 @@ class BiotacSpiSlave:
             return self._error("insufficient_sampling_delay")
         self._last_word = word
         return word
+
+    def read_spi_byte(self, t_ns: int) -> int:
+        """Returns one byte clocked out at t_ns: of the pending word, else of a property read."""
+        if not self.present:
+            return 0xFF
+        if not self._shifting and self._word is not None and not self._prop:
+            self._shifting = self.read_word(t_ns)
+        if self._shifting:
+            byte, self._shifting = self._shifting[0], self._shifting[1:]
+            return byte
+        return self.read_property_byte(t_ns)
 
     def read_property_byte(self, t_ns: int) -> int:
         """Returns the next byte of a property read (0x00 past its end, 0xFF when absent)."""
@@ -512,3 +531,143 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+# --- a fake `cheetah_py` ------------------------------------------------------------------------
+
+class FakeCheetah:
+    """The subset of Total Phase's `cheetah_py` the Cheetah backend uses, on emulated sensors.
+
+    Install it as the module (`sys.modules["cheetah_py"] = FakeCheetah(slaves)`). Queued
+    operations run on simulated time: bytes take 8 bits at the set bitrate, delays their length;
+    bytes shifted while one or more sensors are selected go to each of them, and a sensor turns
+    the bytes of one selection into a command (first byte non-zero) or a read (zeros). With
+    `realtime`, a collected batch is returned no earlier than its simulated end on the wall clock.
+    """
+
+    CH_SPI_BITORDER_MSB = 0
+    CH_TARGET_POWER_ON = 0x03
+    CH_PORT_NOT_FREE = 0x8000
+
+    def __init__(self, slaves: list[BiotacSpiSlave], realtime: bool = False, n_adapters: int = 1):
+        self.slaves, self.realtime, self.n_adapters = slaves, realtime, n_adapters
+        self.t_ns = 0
+        self.bitrate_khz = 1000
+        self.queue: list[tuple] = []
+        self.submitted: list[list[tuple]] = []
+        self.open_handles: set[int] = set()
+        self.unplugged = False
+        self._t0_wall = None
+
+    # device and configuration ------------------------------------------------------------
+    def ch_find_devices_ext(self, devices, unique_ids):
+        n = 0 if self.unplugged else self.n_adapters
+        ports = [i | (self.CH_PORT_NOT_FREE if i + 1 in self.open_handles else 0) for i in range(n)]
+        return n, ports, [1000 + i for i in range(n)]
+
+    def ch_open(self, port):
+        if self.unplugged or not 0 <= port < self.n_adapters:
+            return -1
+        self.open_handles.add(port + 1)
+        return port + 1
+
+    def ch_close(self, handle):
+        self.open_handles.discard(handle)
+        return 0
+
+    def ch_status_string(self, status):
+        return {-1: "CH_UNABLE_TO_OPEN"}.get(status, f"status {status}")
+
+    def ch_spi_configure(self, handle, polarity, phase, bitorder, ss_polarity):
+        return 0
+
+    def ch_target_power(self, handle, mode):
+        return mode
+
+    def ch_sleep_ms(self, ms):
+        return ms
+
+    def ch_spi_bitrate(self, handle, khz):
+        self.bitrate_khz = khz
+        return khz
+
+    # the queue ---------------------------------------------------------------------------
+    def ch_spi_queue_clear(self, handle):
+        self.queue = []
+        return 0
+
+    def ch_spi_queue_oe(self, handle, enable):
+        return 0
+
+    def ch_spi_queue_ss(self, handle, mask):
+        self.queue.append(("ss", mask))
+        return 0
+
+    def ch_spi_queue_byte(self, handle, count, value):
+        self.queue.extend([("byte", value)] * count)
+        return count
+
+    def ch_spi_queue_delay_ns(self, handle, ns):
+        self.queue.append(("delay", int(ns)))
+        return ns
+
+    def ch_spi_batch_length(self, handle):
+        return sum(1 for op in self.queue if op[0] == "byte")
+
+    def ch_spi_batch_shift(self, handle, num_bytes):
+        self._check(handle)
+        data = self._run(self.queue)
+        return len(data), array_of(data[:num_bytes] if num_bytes else b"")
+
+    def ch_spi_async_submit(self, handle):
+        self._check(handle)
+        self.submitted.append(list(self.queue))
+        return 0
+
+    def ch_spi_async_collect(self, handle, num_bytes):
+        self._check(handle)
+        if not self.submitted:
+            return -1, array_of(b"")
+        data = self._run(self.submitted.pop(0))
+        if self.realtime:
+            if self._t0_wall is None:
+                self._t0_wall = time.monotonic() - self.t_ns / 1e9
+            delay = self._t0_wall + self.t_ns / 1e9 - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+        return min(len(data), num_bytes), array_of(data[:num_bytes])
+
+    def _check(self, handle):
+        if self.unplugged or handle not in self.open_handles:
+            raise OSError("Cheetah adapter not connected")
+
+    def _run(self, ops) -> bytes:
+        """Executes queued operations on the sensors; returns the MISO bytes."""
+        miso = bytearray()
+        selected: list[int] = []
+        mosi: list[int] = []
+        byte_ns = 8_000_000 // self.bitrate_khz
+        for kind, value in ops:
+            if kind == "delay":
+                self.t_ns += value
+            elif kind == "byte":
+                self.t_ns += byte_ns
+                mosi.append(value)
+                if len(selected) == 1 and not (mosi and mosi[0]):
+                    slave = self.slaves[selected[0]]
+                    miso.append(slave.read_spi_byte(self.t_ns))
+                else:
+                    miso.append(0xFF if not selected else 0x00)
+            else:   # chip selects change: the selection that ends takes its bytes as a command
+                if mosi and mosi[0] and len(mosi) >= 2:
+                    for j in selected:
+                        self.slaves[j].command(mosi[0], mosi[1], self.t_ns)
+                selected = [j for j in range(len(self.slaves)) if value >> j & 1]
+                mosi = []
+                self.t_ns += byte_ns
+        return bytes(miso)
+
+
+def array_of(data: bytes):
+    from array import array
+    return array("B", data)

@@ -1,8 +1,10 @@
 """biotac_reader: the BioTac through its USB bridge, published as /biotac/pac and /biotac/slow.
 
     python -m incipient_slip.nodes.biotac_reader port:=/dev/ttyACM0 [sensor:=0] [units:=lab.yaml]
+    python -m incipient_slip.nodes.biotac_reader backend:=cheetah [n_biotacs:=3]   (Total Phase Cheetah)
 
-Opens the bridge (firmware/biotac_bridge, docs/hardware.md) with pyserial, checks that a BioTac
+Opens the bridge (firmware/biotac_bridge, docs/hardware.md) with pyserial, or a Cheetah SPI
+adapter when `backend:=cheetah` and Total Phase's `cheetah_py` is installed; checks that a BioTac
 is present (serial number starts with "BT"), then publishes each 10 ms frame: `/biotac/pac` (22
 P_AC samples, counts about the units' zero) and `/biotac/slow` (E1..E19, P_DC, T_AC, T_DC).
 Stamps are the bridge's device clock, anchored once per connection to the host's wall clock:
@@ -31,7 +33,11 @@ class BiotacReader(Node):
     """Reads one BioTac through the bridge; publishes its frames and its fault counters."""
 
     PARAMS = {
+        "backend": Param("bridge", choices=("bridge", "cheetah"),
+                         help="USB bridge on a serial port, or a Total Phase Cheetah (needs cheetah_py)"),
         "port": Param("", help="serial port of the bridge (e.g. /dev/ttyACM0 or an emulator's link)"),
+        "n_biotacs": Param(1, lo=1, hi=bt.MAX_BIOTACS, help="sensors on the Cheetah's bus (cheetah backend)"),
+        "cheetah_port": Param(-1, lo=-1, hi=127, help="Cheetah adapter port (-1: the first free one)"),
         "sensor": Param(0, lo=0, hi=bt.MAX_BIOTACS - 1, help="which sensor of the bridge (chip select 0..4)"),
         "units": Param("", help="YAML file overriding the BioTac units (docs/hardware.md)"),
         "tare_on_start": Param(True, help="tare once streaming starts (keep the finger untouched)"),
@@ -50,15 +56,11 @@ class BiotacReader(Node):
 
     def __init__(self, **kwargs):
         super().__init__("biotac_reader", **kwargs)
-        if not self.param("port"):
-            raise ParamError(f"node {self.name!r}: parameter port is required (the bridge's serial port)")
         try:
             self.units = bt.load_units(self.param("units"))
         except ValueError as exc:
             raise ParamError(f"node {self.name!r}: parameter units: {exc}") from None
-        self.link = bt.BridgeLink(self.param("port"), self.param("sensor"),
-                                  max_backoff_s=self.param("max_backoff_s"),
-                                  stall_timeout_s=self.param("stall_timeout_s"))
+        self.link = self.make_link()
         self.tare = bt.Tare(frames=int(round(self.param("tare_s") * bt.FRAME_RATE_HZ)))
         self.pac_pub = self.create_publisher(BiotacPac)
         self.slow_pub = self.create_publisher(BiotacSlow)
@@ -73,6 +75,21 @@ class BiotacReader(Node):
         self.connection = 0
         self.tare_state = "none"
         self.waiting = self.param("wait_subscribers") > 0
+
+    def make_link(self):
+        """The bridge link, or the Cheetah link (same interface); ParamError if it cannot be made."""
+        backoff, stall = self.param("max_backoff_s"), self.param("stall_timeout_s")
+        if self.param("backend") == "bridge":
+            if not self.param("port"):
+                raise ParamError(f"node {self.name!r}: parameter port is required (the bridge's serial port)")
+            return bt.BridgeLink(self.param("port"), self.param("sensor"), max_backoff_s=backoff,
+                                 stall_timeout_s=stall)
+        from incipient_slip.devices.biotac_cheetah import CheetahLink
+        try:
+            return CheetahLink(self.param("sensor"), self.param("n_biotacs"), self.param("cheetah_port"),
+                               max_backoff_s=backoff, stall_timeout_s=stall)
+        except (RuntimeError, ValueError) as exc:
+            raise ParamError(f"node {self.name!r}: {exc}") from None
 
     def on_tare(self, msg: BiotacTare) -> None:
         self.tare.frames = int(round(msg.duration_s * bt.FRAME_RATE_HZ))
