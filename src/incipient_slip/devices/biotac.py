@@ -27,7 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from incipient_slip.messages import BIOTAC_CHANNELS, BIOTAC_ERROR_WORDS
+from incipient_slip.messages import (
+    BIOTAC_CHANNELS, BIOTAC_ERROR_WORDS, PAC_RATE_HZ, PAC_SAMPLES_PER_FRAME, SLOW_RATE_HZ,
+)
 
 # --- timing --------------------------------------------------------------------------------
 
@@ -38,7 +40,7 @@ FRAME_US = 1_000_000 // FRAME_RATE_HZ                    # 10 000 µs
 AFTER_COMMAND_DELAY_NS = 50_000                          # command -> first read (biotac.h)
 INTERWORD_DELAY_NS = 10_000                              # between sensors' reads (biotac.h)
 MAX_BIOTACS = 5                                          # chip selects on one bus
-PAC_SAMPLES_PER_FRAME = 22
+assert FRAME_RATE_HZ == SLOW_RATE_HZ and FRAME_RATE_HZ * PAC_SAMPLES_PER_FRAME == PAC_RATE_HZ
 
 
 def slot_offset_ns(slot: int) -> int:

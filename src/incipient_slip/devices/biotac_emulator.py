@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from incipient_slip.devices import biotac as bt
+from incipient_slip.messages import PAC_RATE_HZ, SLOW_RATE_HZ
 
 FAULT_KINDS = ("parity_flip", "error_word", "crc", "drop", "repeat", "counter_jump", "missing", "unplug")
 COUNTER_JUMP = 1000      # frames a "counter_jump" fault adds to the bridge's counter
@@ -87,12 +88,12 @@ class RigSignals:
     def sample(self, channel: str, t_ns: int) -> int:
         """Return the channel's 12-bit value at t_ns of the sensor's clock."""
         if channel == "PAC":
-            i = t_ns * 2200 // 1_000_000_000
+            i = t_ns * PAC_RATE_HZ // 1_000_000_000
             out = self._period(i // self.n_pac)
             if out.pac_counts is None:
                 return self.zero
             return int(min(4095, max(0, int(out.pac_counts[i % self.n_pac]) + self.zero)))
-        f = t_ns * 100 // 1_000_000_000
+        f = t_ns * SLOW_RATE_HZ // 1_000_000_000
         out = self._period(f // self.n_slow)
         row = f % self.n_slow
         if channel.startswith("E"):
