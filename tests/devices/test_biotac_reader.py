@@ -119,3 +119,26 @@ def test_reader_refuses_bad_parameters_in_one_line(argv, message):
                           capture_output=True, text=True, timeout=30)
     assert proc.returncode == 2
     assert message in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_tare_on_request_sets_the_pdc_baseline(graph, tmp_path):
+    emulator, link = start_emulator(graph, tmp_path)
+    probe = Probe(graph.dir)
+    reader = graph.spawn(["python", "-m", "incipient_slip.nodes.biotac_reader", f"port:={link}",
+                          "wait_subscribers:=1", "tare_on_start:=false", "status_period_s:=0.05"])
+    try:
+        probe.spin_until(lambda: len(probe.slow) >= 5, [emulator, reader])
+        assert probe.slow[-1].pdc_tare_counts == 0 and probe.status[-1].tare_state == "none"
+        while not probe.tare_pub.wait_for_subscribers(1, 0.1):
+            assert reader.poll() is None
+        probe.tare_pub.publish(BiotacTare(duration_s=0.3))
+        probe.spin_until(lambda: probe.status and probe.status[-1].tare_state == "done", [emulator, reader])
+        n = len(probe.slow)
+        probe.spin_until(lambda: len(probe.slow) >= n + 3, [emulator, reader])
+    finally:
+        probe.close()
+    reader.terminate()
+    assert reader.wait(10) == 0
+    pdc = np.array([m.pdc_counts for m in probe.slow[-30:]])
+    assert probe.slow[-1].pdc_tare_counts == pytest.approx(pdc.mean(), abs=5)
+    assert "tare done" in reader.stderr.read().decode()

@@ -19,7 +19,7 @@ ALLOWED = {
     "sim": {"messages"},
     "models": {"messages"},
     "graph": {"messages"},
-    "devices": {"messages"},
+    "devices": {"messages", "sim"},         # emulators take their signal values from the simulated rig
     "nodes": {"graph", "messages", "models", "sim", "control", "devices"},
     "experiments": {"nodes", "graph", "messages", "models", "sim", "control", "devices"},
     "cli": {"graph", "sim", "models", "experiments"},
