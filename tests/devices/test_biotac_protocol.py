@@ -136,9 +136,16 @@ def test_tare_then_touch_after_five_frames_above_fifty_sigma():
     assert not tare.touching
 
 
-def test_tare_is_refused_when_touched_while_taring():
+def test_tare_is_refused_when_touched_while_taring_and_the_last_baseline_stays():
     tare = bt.Tare(frames=10)
     tare.start()
     for i in range(10):
         tare.add(2000 + 100 * i, np.zeros(19))
     assert tare.state == "refused" and tare.pdc_tare_counts == 0
+    tare.start()
+    for _ in range(10):
+        tare.add(1900, np.zeros(19))
+    assert tare.state == "done" and tare.pdc_tare_counts == 1900
+    tare.start()
+    tare.add(1800, np.zeros(19))
+    assert tare.state == "collecting" and tare.pdc_tare_counts == 1900

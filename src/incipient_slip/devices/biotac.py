@@ -539,6 +539,7 @@ class Tare:
         self.pdc_mean = self.pdc_std = 0.0
         self.electrode_mean = np.zeros(19)
         self.touching = False
+        self.pdc_tare_counts = 0     # the last accepted baseline, counts (kept while a new tare runs)
         self._rows: list[np.ndarray] = []
         self._above = 0
 
@@ -560,17 +561,13 @@ class Tare:
                                    f"limit {self.max_pdc_std_counts}: keep the finger untouched")
                     return
                 self.state, self.pdc_mean, self.pdc_std = "done", float(mean[0]), float(std[0])
+                self.pdc_tare_counts = int(round(self.pdc_mean))
                 self.electrode_mean = mean[1:]
                 self.detail = f"P_DC {self.pdc_mean:.1f} +/- {self.pdc_std:.2f} counts"
         elif self.state == "done":
             threshold = self.pdc_mean + self.touch_sigma * max(self.pdc_std, 1.0)
             self._above = self._above + 1 if pdc > threshold else 0
             self.touching = self._above >= self.touch_frames
-
-    @property
-    def pdc_tare_counts(self) -> int:
-        """Return the P_DC baseline, counts (0 until a tare is done)."""
-        return int(round(self.pdc_mean)) if self.state == "done" else 0
 
 
 # --- the host side of the bridge ---------------------------------------------------------

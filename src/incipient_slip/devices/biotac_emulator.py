@@ -343,6 +343,7 @@ class PtyBridgeServer:
         self.streaming = False
         self.unplugs = 0
         self.tx_dropped = 0      # frames dropped because the host did not read (real time)
+        self.error: Exception | None = None
         self._stop = threading.Event()
         self._master = self._slave = -1
         self._out = bytearray()
@@ -378,7 +379,8 @@ class PtyBridgeServer:
     def start(self) -> "PtyBridgeServer":
         """Plugs in and serves on a thread; returns self."""
         self.plug()
-        self._thread = threading.Thread(target=self.serve, name="biotac-emulator", daemon=True)
+        self._thread = threading.Thread(target=self._serve_or_record_error, name="biotac-emulator",
+                                        daemon=True)
         self._thread.start()
         self.ready.wait(5.0)
         return self
@@ -419,6 +421,13 @@ class PtyBridgeServer:
     def _unread(self) -> int:
         """Bytes written to the port that the host has not read yet."""
         return struct.unpack("i", fcntl.ioctl(self._slave, termios.FIONREAD, b"\0\0\0\0"))[0]
+
+    def _serve_or_record_error(self) -> None:
+        try:
+            self.serve()
+        except Exception as exc:      # the CLI reports it and exits 1 instead of going silent
+            self.error = exc
+            self.ready.set()
 
     def serve(self) -> None:
         """Runs until stop(): host commands, frames on schedule, faults, unplug/replug."""
@@ -527,6 +536,9 @@ def main(argv: list[str] | None = None) -> int:
         pass
     finally:
         server.stop()
+    if server.error is not None:
+        print(f"biotac_emulator: stopped by {type(server.error).__name__}: {server.error}", file=sys.stderr)
+        return 1
     return 0
 
 
