@@ -136,8 +136,15 @@ def test_node_ramps_to_zero_when_the_heartbeat_stops_and_on_shutdown(graph, tmp_
     try:
         while not probe.cmd.wait_for_subscribers(1, 0.1):
             assert proc.poll() is None, proc.stderr.read().decode()
-        probe.cmd.publish(PztCommand(enabled=True, intensity_db=0.0))
-        probe.spin_until(lambda: probe.outputs and probe.outputs[-1].output_rms == pytest.approx(0.25), proc)
+        command = PztCommand(enabled=True, intensity_db=0.0)
+        probe.cmd.publish(command)
+
+        def playing():
+            if probe.states and not probe.states[-1].enabled and probe.outputs:
+                probe.cmd.publish(command)     # a stall of this process looked like a dead graph
+            return probe.outputs and probe.outputs[-1].output_rms == pytest.approx(0.25)
+
+        probe.spin_until(playing, proc)
         assert probe.states[-1].enabled and probe.states[-1].band_high_hz == 1100.0
         # the graph goes silent: no heartbeat, no command
         probe.spin_until(lambda: not probe.states[-1].enabled and probe.outputs[-1].output_rms == 0.0,
