@@ -181,3 +181,20 @@ def test_real_time_bridge_drops_frames_the_host_does_not_read(tmp_path):
         link.close()
         server.stop()
     assert link.stream.counters.frames_dropped >= 1
+
+
+def test_a_bridge_left_streaming_by_a_previous_host_starts_clean(tmp_path):
+    server = rig_server(tmp_path)
+    first = bt.BridgeLink(str(tmp_path / "biotac"))
+    try:
+        poll_until(first, lambda r: len(r) >= 20)
+        first._serial.close()              # the old host dies without stopping the bridge
+        first._serial = None
+        second = bt.BridgeLink(str(tmp_path / "biotac"))
+        readings = poll_until(second, lambda r: len(r) >= 20)
+    finally:
+        second.close()
+        server.stop()
+    c = second.stream.counters
+    assert (c.frames_dropped, c.counter_jumps, c.frames_repeated) == (0, 0, 0)
+    assert [r.frame_index for r in readings] == list(range(len(readings)))

@@ -674,6 +674,9 @@ class BridgeLink:
                                   f"(serial number {serial_number!r} does not start with 'BT'): "
                                   f"check the sensor's cable and the chip select", now)
                 return
+            # frames sent before our stop command (a bridge left streaming) are behind us now:
+            # continuity starts with the first frame of this stream
+            self.stream.restart()
             self._serial.write(CMD_START)
             self.state = "streaming"
             self.connections += 1
