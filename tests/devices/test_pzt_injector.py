@@ -172,3 +172,43 @@ def test_node_refuses_bad_parameters_in_one_line(argv, message):
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
     assert message in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_sounddevice_backend_fills_the_cards_buffers_and_counts_its_underflows(monkeypatch):
+    """PortAudio is not installed here: a stand-in `sounddevice` calls the callback as the
+    library does (outdata (frames, channels) float32, a status with output_underflow)."""
+    import sys
+    import types
+
+    class Status:
+        def __init__(self, underflow):
+            self.output_underflow = underflow
+
+    class OutputStream:
+        def __init__(self, samplerate, blocksize, channels, dtype, device, callback):
+            self.args = (samplerate, blocksize, channels, dtype, device)
+            self.callback, self.blocks, self.state = callback, [], "new"
+
+        def start(self):
+            self.state = "started"
+            for underflow in (False, True, False):
+                out = np.zeros((self.args[1], self.args[2]), dtype=self.args[3])
+                self.callback(out, self.args[1], None, Status(underflow))
+                self.blocks.append(out)
+
+        def stop(self):
+            self.state = "stopped"
+
+        def close(self):
+            self.state = "closed"
+
+    monkeypatch.setitem(sys.modules, "sounddevice", types.SimpleNamespace(OutputStream=OutputStream))
+    injector = pzt.Injector(FS, ramp_s=0.02)
+    injector.set(True, 0.0)
+    backend = pzt.SoundDeviceBackend(injector, FS, BLOCK, device="")
+    assert backend.stream.args == (FS, BLOCK, 1, "float32", None)
+    assert backend.underflows == 1
+    played = np.concatenate([b[:, 0] for b in backend.stream.blocks])
+    assert np.abs(played[:10]).max() < 0.05 and np.abs(played).max() > 0.1     # ramped in
+    backend.close()
+    assert backend.stream.state == "closed"
