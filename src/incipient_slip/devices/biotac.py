@@ -202,7 +202,6 @@ PROPERTY_HEADER_BYTES = 2 + _PROPERTY_HEADER.size
 STATUS_OVERRUN = 0x0001      # a slot of this frame started late (schedule overrun)
 STATUS_TX_DROPPED = 0x0002   # the USB queue was full: frames before this one were dropped
 STATUS_STARTED = 0x0004      # first frame after a start command
-STATUS_BITS = {"overrun": STATUS_OVERRUN, "tx_dropped": STATUS_TX_DROPPED, "started": STATUS_STARTED}
 
 # Host -> bridge commands (single ASCII bytes).
 CMD_START, CMD_STOP, CMD_PROPERTIES = b"S", b"X", b"?"
@@ -430,7 +429,6 @@ class BridgeStream:
         self.counters = FaultCounters()
         self.parser = FrameParser()
         self.properties: dict[str, str | int] = {}
-        self.n_biotacs = 0
         self._last_counter: int | None = None
         self._last_time_us = 0
         self._elapsed_us = 0
@@ -469,7 +467,6 @@ class BridgeStream:
         if self.sensor >= frame.n_biotacs:
             c.header_errors += 1
             return None
-        self.n_biotacs = frame.n_biotacs
         if frame.status & STATUS_OVERRUN:
             c.bridge_overruns += 1
         if frame.status & STATUS_TX_DROPPED:
