@@ -22,8 +22,11 @@ PAGE = Path(__file__).resolve().parents[2] / "docs" / "messages.md"
 PINS = {
     "BiotacPac": (1, "312e7b2e4856"),
     "BiotacSlow": (1, "27e75fadd27e"),
+    "BiotacStatus": (1, "6693d8fc5b77"),
+    "BiotacTare": (1, "fefa6c13e29d"),
     "PztCommand": (1, "3bf38aa7b023"),
     "PztState": (1, "420c26496bf8"),
+    "PztOutput": (1, "1311694450e4"),
     "ObjectPose": (1, "8a21f7fa9c0c"),
     "ActuatorCommand": (1, "03b49e889245"),
     "ActuatorState": (1, "b016442adcff"),
