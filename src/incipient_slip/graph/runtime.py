@@ -265,7 +265,7 @@ class Node:
 
     def _check_declared(self, kind: str, declared, msg_type, topic: str) -> None:
         """Refuses a topic or type outside the node's INPUTS/OUTPUTS (when it declares them)."""
-        if declared is None:
+        if declared is None or msg_type is M.Heartbeat:   # every node's own heartbeat
             return
         if declared.get(topic) is not msg_type:
             have = ", ".join(f"{t} ({c.__name__})" for t, c in declared.items()) or "(none)"

@@ -1,0 +1,116 @@
+"""mocap_bridge on the emulated Motive: /object/pose in mm along the rail, stamped at exposure,
+never a zero or NaN pose for an untracked or broken frame, exit 2 when no server answers."""
+from __future__ import annotations
+
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from incipient_slip.devices import natnet as nn
+from incipient_slip.devices.natnet_emulator import NatNetEmulator
+from incipient_slip.graph.runtime import Node
+from incipient_slip.messages import ObjectPose
+from incipient_slip.nodes.mocap_bridge import MocapBridge, pose_from_frame
+
+pytestmark = pytest.mark.timeout(60)
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def frame_with(body: nn.RigidBody, **kw) -> nn.Frame:
+    return nn.Frame(frame_number=1, rigid_bodies=(body,), **kw)
+
+
+@pytest.mark.parametrize("axis, expected", [("y", [10.0, 23.5, -2.0]), ("x", [23.5, 10.0, -2.0]),
+                                            ("-z", [10.0, 2.0, 23.5])])
+def test_rail_axis_becomes_y_in_mm(axis, expected):
+    body = nn.RigidBody(1, (0.010, 0.0235, -0.002), (0.0, 0.0, 0.0, 1.0))
+    pose, why = pose_from_frame(frame_with(body), 1, axis, recv_ns=10**18)
+    assert why == "" and np.allclose(pose.position_mm, expected)
+
+
+def test_stamp_is_receive_time_less_motive_reported_latency():
+    body = nn.RigidBody(1, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+    frame = frame_with(body, mid_exposure_ticks=1_000_000, transmit_ticks=1_040_000)
+    pose, _ = pose_from_frame(frame, 1, "y", recv_ns=10**18, clock_hz=10_000_000)
+    assert pose.stamp_ns == 10**18 - 4_000_000
+
+
+@pytest.mark.parametrize("body, why", [
+    (nn.RigidBody(1, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0), tracking_valid=False), "untracked"),
+    (nn.RigidBody(1, (float("nan"), 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)), "non-finite"),
+    (nn.RigidBody(2, (0.1, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)), "missing"),
+])
+def test_unusable_body_gives_no_pose_and_says_why(body, why):
+    assert pose_from_frame(frame_with(body), 1, "y", recv_ns=1) == (None, why)
+
+
+class Probe(Node):
+    def __init__(self, graph_dir):
+        super().__init__("probe", graph_dir=graph_dir, heartbeat_s=0)
+        self.poses: list[ObjectPose] = []
+        self.create_subscription(ObjectPose, self.poses.append)
+
+
+def spin_until(nodes, predicate, timeout_s=15.0):
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        assert time.monotonic() < deadline, "timed out"
+        for node in nodes:
+            node.spin_once(0.002)
+
+
+def test_bridge_publishes_tracked_poses_only_and_alarms_on_version_change(graph):
+    data_port = free_udp_port()
+    with NatNetEmulator((4, 1), data_port=data_port) as emulator:
+        emulator.set_pose((0.010, 0.0235, -0.002))
+        bridge = MocapBridge(params={"command_port": emulator.command_port, "data_port": data_port,
+                                     "no_data_s": 0.3, "connect_timeout_s": 0.1},
+                             graph_dir=graph.dir, heartbeat_s=0)
+        probe = Probe(graph.dir)
+        nodes = (bridge, probe)
+        try:
+            spin_until(nodes, lambda: bridge.pose_pub.subscriber_count() >= 1)
+            spin_until(nodes, lambda: len(probe.poses) >= 5)
+            assert np.allclose(probe.poses[-1].position_mm, [10.0, 23.5, -2.0], atol=1e-4)
+            emulator.tracking_lost = True
+            spin_until(nodes, lambda: bridge.skipped["untracked"] >= 5)
+            emulator.tracking_lost, emulator.nan_pose = False, True
+            spin_until(nodes, lambda: bridge.skipped["non-finite"] >= 5)
+            emulator.nan_pose = False
+            n = len(probe.poses)
+            spin_until(nodes, lambda: len(probe.poses) >= n + 5)
+            emulator.restart((4, 2))
+            spin_until(nodes, lambda: bridge.client.stats["version_changes"] == 1)
+            n = len(probe.poses)
+            spin_until(nodes, lambda: len(probe.poses) >= n + 5)
+        finally:
+            bridge.close()
+            probe.close()
+    assert all(p.tracking_valid for p in probe.poses)
+    assert all(np.allclose(p.position_mm, [10.0, 23.5, -2.0], atol=1e-4) for p in probe.poses), \
+        "a zero or stale pose was published"
+    stamps = [p.stamp_ns for p in probe.poses]
+    assert stamps == sorted(stamps)
+
+
+def test_no_server_exits_2_with_one_line_naming_the_address(graph):
+    port = free_udp_port()
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.mocap_bridge", f"command_port:={port}",
+                        f"data_port:={free_udp_port()}", "startup_timeout_s:=0.5"])
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 2
+    lines = [l for l in err.decode().splitlines() if "no NatNet server" in l]
+    assert len(lines) == 1 and f"127.0.0.1:{port}" in lines[0]
+
+
+def test_bad_address_parameter_is_exit_2(graph):
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.mocap_bridge", "server_address:=motive.local"])
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 2 and "server_address" in err.decode()
