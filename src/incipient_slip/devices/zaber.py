@@ -1,0 +1,305 @@
+"""Zaber ASCII protocol over a serial port: message format, checksums, replies, and a client.
+
+Written from Zaber's public protocol description (docs/hardware.md, "Zaber"); no code of
+theirs. A command is `/device axis id command data:CC` and a newline; the device answers
+`@dd a id OK|RJ IDLE|BUSY ww data[:CC]` and CR LF, where `ww` is its highest-priority warning
+flag (`--` for none). `#` lines carry extra information, `!` lines are alerts (off by default).
+The checksum is the two's complement of the byte sum of the text between the leading
+character and the colon, mod 256, in upper-case hex.
+
+The client sends every command with a message id (0..99, cycling) and a checksum, reads
+lines until the reply with its device, axis and id, and drops (and counts) everything else:
+a garbled line, a wrong checksum, a reply to an earlier command that timed out. A rejected
+command raises `ZaberRejected` with the reason spelled out; a fault flag (F...) raises
+`ZaberFault`; no reply raises `ZaberTimeout`. Relative moves are never retried: only the
+idempotent status poll, reads, stop and absolute moves are.
+"""
+from __future__ import annotations
+
+import time
+from collections import Counter
+from dataclasses import dataclass
+
+__all__ = ["ZaberError", "ZaberTimeout", "ZaberRejected", "ZaberFault", "ZaberLineError",
+           "Reply", "checksum", "format_command", "parse_line", "ZaberClient",
+           "REJECTION_REASONS", "WARNING_FLAGS", "DEFAULT_BAUD"]
+
+DEFAULT_BAUD = 115200
+
+# Why a device rejects a command (the data of an RJ reply), in words a user can act on.
+REJECTION_REASONS = {
+    "BADDATA": "a value is out of range or not a number (e.g. a position beyond limit.min/limit.max)",
+    "BADCOMMAND": "the device does not know this command (check the firmware's command set)",
+    "BADAXIS": "no such axis on this device",
+    "BADMESSAGEID": "the message id is not 0..99",
+    "DEVICEONLY": "the command must be sent to axis 0",
+    "AGAIN": "the device is busy with a previous command; send it again",
+    "FULL": "the device's command buffer is full",
+    "LOCKSTEP": "the axis is in a lockstep group",
+    "NOACCESS": "the setting needs a higher access level",
+    "PARKED": "the axis is parked: send 'tools parking unpark'",
+    "STATUSBUSY": "the command needs the axis to be idle",
+}
+# Flags in the warning field; F* are faults that stop motion, W* warnings, N* notices.
+WARNING_FLAGS = {
+    "FS": "stalled and stopped (the load blocked the stage)",
+    "FD": "driver disabled", "FQ": "encoder error", "FT": "excessive twist",
+    "FE": "limit error", "FB": "stream bounds error", "FP": "path deviation",
+    "FO": "overdrive limit exceeded", "FM": "motor mismatch",
+    "WR": "no reference position: the axis must be homed",
+    "WH": "device not homed", "WL": "unexpected limit trigger", "WV": "voltage out of range",
+    "WT": "temperature too high", "WM": "displaced when stationary", "WP": "invalid calibration",
+    "NC": "manual control", "NI": "command interrupted", "ND": "stream discontinuity",
+    "NU": "setting update pending", "NJ": "joystick calibration in progress",
+}
+
+
+class ZaberError(RuntimeError):
+    """Base of the errors the client raises; the text names port, device, axis and command."""
+
+
+class ZaberTimeout(ZaberError):
+    """No reply to a command within the timeout."""
+
+
+class ZaberRejected(ZaberError):
+    """The device answered RJ; `reason` is its rejection reason (BADDATA, BADCOMMAND, ...)."""
+
+    def __init__(self, text: str, reason: str):
+        self.reason = reason
+        super().__init__(text)
+
+
+class ZaberFault(ZaberError):
+    """The device reports a fault flag (F...) or lost its position (WR) in the middle of work."""
+
+    def __init__(self, text: str, flag: str):
+        self.flag = flag
+        super().__init__(text)
+
+
+class ZaberLineError(ValueError):
+    """A line that is not a well-formed message, or whose checksum is wrong; `reason` is a key."""
+
+    def __init__(self, reason: str, line: str):
+        self.reason = reason
+        super().__init__(f"{reason}: {line[:80]!r}")
+
+
+@dataclass(frozen=True)
+class Reply:
+    """One message from a device: kind '@' reply, '!' alert or '#' info."""
+
+    kind: str
+    device: int
+    axis: int
+    message_id: int | None
+    flag: str = ""          # OK or RJ (replies)
+    status: str = ""        # IDLE or BUSY (replies, alerts)
+    warning: str = "--"     # highest-priority warning flag, "--" for none
+    data: str = ""
+
+    @property
+    def busy(self) -> bool:
+        return self.status == "BUSY"
+
+
+def checksum(text: str) -> str:
+    """The two-hex-digit checksum of `text` (the part between the leading character and ':')."""
+    return f"{(-sum(text.encode('ascii'))) & 0xFF:02X}"
+
+
+def format_command(device: int, axis: int, message_id: int | None, command: str,
+                   with_checksum: bool = True) -> bytes:
+    """The bytes of one command line, e.g. b"/1 1 07 move rel 1000:A3\\n"."""
+    body = f"{device} {axis}" + (f" {message_id:02d}" if message_id is not None else "")
+    body += f" {command}" if command else ""
+    return (f"/{body}" + (f":{checksum(body)}" if with_checksum else "") + "\n").encode("ascii")
+
+
+def _split_checksum(text: str, line: str) -> str:
+    if len(text) >= 3 and text[-3] == ":":
+        body, cc = text[:-3], text[-2:]
+        if checksum(body) != cc.upper():
+            raise ZaberLineError("checksum", line)
+        return body
+    return text
+
+
+def parse_line(line: str) -> Reply:
+    """The Reply in one received line (without CR LF); ZaberLineError when malformed."""
+    if not line or line[0] not in "@!#" or not line.isprintable():
+        raise ZaberLineError("garbled", line)
+    kind = line[0]
+    body = _split_checksum(line[1:], line)
+    words = body.split(" ")
+    try:
+        device, axis = int(words[0]), int(words[1])
+    except (IndexError, ValueError):
+        raise ZaberLineError("garbled", line) from None
+    rest = words[2:]
+    message_id = None
+    if rest and len(rest[0]) == 2 and rest[0].isdigit():
+        message_id, rest = int(rest[0]), rest[1:]
+    if kind == "#":
+        return Reply(kind, device, axis, message_id, data=" ".join(rest))
+    if kind == "!":
+        if len(rest) < 2 or rest[0] not in ("IDLE", "BUSY"):
+            raise ZaberLineError("garbled", line)
+        return Reply(kind, device, axis, message_id, status=rest[0], warning=rest[1],
+                     data=" ".join(rest[2:]))
+    if (len(rest) < 4 or rest[0] not in ("OK", "RJ") or rest[1] not in ("IDLE", "BUSY")
+            or len(rest[2]) != 2):
+        raise ZaberLineError("garbled", line)
+    return Reply(kind, device, axis, message_id, rest[0], rest[1], rest[2], " ".join(rest[3:]))
+
+
+class ZaberClient:
+    """Talks to one axis of one Zaber device on a serial port (pyserial or any object with
+    write(), readline() honouring a timeout, and reset_input_buffer()).
+
+    `microsteps_per_mm` converts positions; it comes from the rig configuration (the stage's
+    microstep size), never from Zaber's online device database.
+    """
+
+    def __init__(self, port, *, device: int = 1, axis: int = 1, microsteps_per_mm: float,
+                 timeout_s: float = 1.0, poll_s: float = 0.01, name: str = "serial port",
+                 clock=time.monotonic):
+        if not microsteps_per_mm > 0:
+            raise ValueError(f"microsteps_per_mm must be > 0, got {microsteps_per_mm}")
+        self.port, self.device, self.axis = port, device, axis
+        self.microsteps_per_mm = microsteps_per_mm
+        self.timeout_s, self.poll_s, self.name, self.clock = timeout_s, poll_s, name, clock
+        self.stats: Counter = Counter()
+        self.alerts: list[Reply] = []
+        self.last_reply: Reply | None = None
+        self._next_id = 0
+
+    # --- one exchange ---
+
+    def command(self, command: str, *, retries: int = 0) -> Reply:
+        """The device's OK reply to `command` ("" polls status); raises ZaberRejected on RJ,
+        ZaberTimeout without a reply (after `retries` more tries: only for idempotent ones)."""
+        for attempt in range(retries + 1):
+            message_id = self._next_id
+            self._next_id = (self._next_id + 1) % 100
+            self.port.write(format_command(self.device, self.axis, message_id, command))
+            self.stats["commands"] += 1
+            reply = self._await(message_id)
+            if reply is not None:
+                break
+            self.stats["timeouts"] += 1
+        else:
+            raise ZaberTimeout(f"no reply from {self.name} device {self.device} axis {self.axis} "
+                               f"to {command or '(status poll)'!r} within {self.timeout_s:g} s "
+                               f"(powered, cabled, at the configured baud rate, ASCII protocol?)")
+        self.last_reply = reply
+        if reply.flag == "RJ":
+            self.stats["rejected"] += 1
+            why = REJECTION_REASONS.get(reply.data, "unknown reason")
+            raise ZaberRejected(f"{self.name} device {self.device} axis {self.axis} rejected "
+                                f"{command!r}: {reply.data} ({why})", reply.data)
+        return reply
+
+    def _await(self, message_id: int) -> Reply | None:
+        deadline = self.clock() + self.timeout_s
+        while self.clock() < deadline:
+            raw = self.port.readline()
+            if not raw:
+                continue
+            if not raw.endswith(b"\n"):
+                self._drop("partial", raw)
+                continue
+            try:
+                reply = parse_line(raw.decode("ascii").rstrip("\r\n"))
+            except (UnicodeDecodeError, ZaberLineError) as exc:
+                self._drop(getattr(exc, "reason", "garbled"), raw)
+                continue
+            if reply.kind == "!":
+                self.alerts.append(reply)
+                self.stats["alerts"] += 1
+            elif reply.kind == "#":
+                self.stats["info"] += 1
+            elif (reply.device, reply.axis, reply.message_id) != (self.device, self.axis, message_id):
+                self._drop("foreign_reply", raw)   # another axis, or a late reply to a timed-out command
+            else:
+                return reply
+        return None
+
+    def _drop(self, reason: str, raw: bytes) -> None:
+        self.stats["dropped"] += 1
+        self.stats[f"dropped:{reason}"] += 1
+
+    # --- what the actuator node uses ---
+
+    def status(self) -> Reply:
+        """A status poll (the empty command): BUSY/IDLE and the warning flag."""
+        return self.command("", retries=2)
+
+    def position_mm(self) -> float:
+        """The axis position, mm."""
+        reply = self.command("get pos", retries=2)
+        try:
+            return int(reply.data.split()[0]) / self.microsteps_per_mm
+        except (IndexError, ValueError):
+            raise ZaberError(f"{self.name}: 'get pos' answered {reply.data!r}, not a number") from None
+
+    def to_microsteps(self, mm: float) -> int:
+        """`mm` in whole microsteps."""
+        return round(mm * self.microsteps_per_mm)
+
+    def move_abs_mm(self, mm: float) -> Reply:
+        """Starts a move to `mm` (returns at once; see wait_idle). An absolute move is
+        idempotent, so a lost reply is retried; a relative one never is."""
+        return self.command(f"move abs {self.to_microsteps(mm)}", retries=2)
+
+    def move_rel_mm(self, mm: float) -> Reply:
+        """Starts a move by `mm` (returns at once; see wait_idle)."""
+        return self.command(f"move rel {self.to_microsteps(mm)}")
+
+    def home(self) -> Reply:
+        """Starts homing (returns at once; see wait_idle)."""
+        return self.command("home")
+
+    def stop(self) -> Reply:
+        """Decelerates to a stop."""
+        return self.command("stop", retries=2)
+
+    def clear_warnings(self) -> list[str]:
+        """Clears the clearable warning flags; returns the flags that were set."""
+        reply = self.command("warnings clear", retries=2)
+        return reply.data.split()[1:]
+
+    def check(self, reply: Reply, during: str) -> Reply:
+        """`reply` when its warning flag allows work to go on; ZaberFault for a fault flag or a
+        lost reference (WR) `during` a move."""
+        flag = reply.warning
+        if flag.startswith("F") or (flag == "WR" and during != "homing"):
+            raise ZaberFault(f"{self.name} device {self.device} axis {self.axis} reports {flag} "
+                             f"({WARNING_FLAGS.get(flag, 'see the protocol manual')}) during "
+                             f"{during}", flag)
+        return reply
+
+    def wait_idle(self, timeout_s: float, during: str = "a move") -> Reply:
+        """Polls status until IDLE (checking the warning flag each time); ZaberTimeout when the
+        axis is still BUSY after `timeout_s`."""
+        deadline = self.clock() + timeout_s
+        while True:
+            reply = self.check(self.status(), during)
+            if not reply.busy:
+                return reply
+            if self.clock() >= deadline:
+                raise ZaberTimeout(f"{self.name} device {self.device} axis {self.axis} still "
+                                   f"BUSY after {timeout_s:g} s during {during}")
+            time.sleep(self.poll_s)
+
+    def ensure_homed(self, timeout_s: float = 60.0) -> bool:
+        """Homes the axis when it has no reference position (WR); True when it homed."""
+        if self.status().warning != "WR":
+            return False
+        self.home()
+        self.wait_idle(timeout_s, during="homing")
+        if self.status().warning == "WR":
+            raise ZaberFault(f"{self.name} device {self.device} axis {self.axis} still has no "
+                             f"reference position after homing", "WR")
+        return True

@@ -1,0 +1,181 @@
+"""linear_actuator: the Zaber stage that pulls the object, one step per period (the paper's
+protocol: 23 mm in 450 steps, one step each 500 ms), publishing /actuator/state.
+
+    python -m incipient_slip.nodes.linear_actuator port:=/dev/ttyUSB0 microsteps_per_mm:=20997.375
+
+At start it opens the port, checks that the device answers, homes the axis if it has no
+reference position (WR) and moves to `start_mm`. Then every `period_s` it moves to the next
+absolute target `start_mm + (k + 1) * travel_mm / steps` (absolute targets: no rounding drift,
+and a lost reply can be resent safely), waits until IDLE, reads the position back and
+publishes `ActuatorState(step_index=k)`: the period tick the grip controller answers. With
+`lockstep: true` step k + 1 waits for the `GripCommand` of period k. Step 0 waits (at most
+`wait_timeout_s`) until the tick has `wait_subscribers` readers, so period 0 is not lost.
+
+Safety of its own: a target outside [limit_min_mm, limit_max_mm] is refused; a fault flag (FS
+stalled), a lost reference (WR after a reset), no reply, or a position that is not the target
+stops the protocol: the stage is told to stop and the node exits 3 with one line. A serial port
+that cannot be opened or a device that does not answer at start is exit 2 (a missing device).
+"""
+from __future__ import annotations
+
+import time
+
+from incipient_slip.devices import zaber
+from incipient_slip.graph.params import Param, ParamError
+from incipient_slip.graph.runtime import Node, run_node
+from incipient_slip.messages import ActuatorState, GripCommand
+
+EXIT_NO_DEVICE = 2
+EXIT_FAULT = 3
+PAPER_TRAVEL_MM = 23.0
+PAPER_STEPS = 450
+
+
+def step_target_mm(k: int, start_mm: float, travel_mm: float, steps: int) -> float:
+    """Where the stage stands after step k (0-based): start + (k + 1) travel / steps, mm."""
+    return start_mm + (k + 1) * travel_mm / steps
+
+
+class LinearActuator(Node):
+    """Pulls the object one step per period on a Zaber stage and publishes the period tick."""
+
+    INPUTS = {GripCommand.TOPIC: GripCommand}
+    OUTPUTS = {ActuatorState.TOPIC: ActuatorState}
+    PARAMS = {
+        "port": Param("/dev/ttyUSB0", help="serial port of the Zaber stage"),
+        "baud": Param(zaber.DEFAULT_BAUD, choices=(9600, 19200, 38400, 57600, 115200), help="baud rate"),
+        "device": Param(1, lo=1, hi=99, help="device address"),
+        "axis": Param(1, lo=1, hi=9, help="axis number"),
+        "microsteps_per_mm": Param(20997.375, lo=1.0, hi=1e7, help="stage resolution (config/rig.yaml)"),
+        "travel_mm": Param(PAPER_TRAVEL_MM, lo=0.0, hi=500.0, help="total pull (paper: 23 mm)"),
+        "steps": Param(PAPER_STEPS, lo=1, hi=100000, help="number of steps (paper: 450)"),
+        "period_s": Param(0.5, lo=0.01, hi=60.0, help="one step per period (paper: 500 ms)"),
+        "start_mm": Param(0.0, lo=-1000.0, hi=1000.0, help="absolute position of step 0's start"),
+        "limit_min_mm": Param(0.0, lo=-1000.0, hi=1000.0, help="never command below this"),
+        "limit_max_mm": Param(50.0, lo=-1000.0, hi=1000.0, help="never command above this"),
+        "tolerance_mm": Param(0.005, lo=0.0, hi=1.0, help="read-back position must be this close"),
+        "reply_timeout_s": Param(0.5, lo=0.01, hi=10.0, help="wait this long for a reply"),
+        "move_timeout_s": Param(0.4, lo=0.01, hi=60.0, help="a step must finish within this"),
+        "home_timeout_s": Param(60.0, lo=0.1, hi=600.0, help="homing must finish within this"),
+        "lockstep": Param(False, choices=(False, True), help="step k+1 waits for GripCommand(period=k)"),
+        "exit_when_done": Param(False, choices=(False, True), help="exit 0 after the last step"),
+        "wait_subscribers": Param(1, lo=0, hi=100, help="step 0 waits for this many readers of the tick"),
+        "wait_timeout_s": Param(10.0, lo=0.0, hi=3600.0, help="then starts anyway, with a warning"),
+    }
+
+    def __init__(self, port=None, **kwargs):
+        super().__init__("linear_actuator", **kwargs)
+        p = self.param
+        if not p("limit_min_mm") <= p("start_mm") <= p("limit_max_mm"):
+            raise ParamError(f"start_mm:={p('start_mm')} is outside [limit_min_mm, limit_max_mm]"
+                             f" = [{p('limit_min_mm')}, {p('limit_max_mm')}]")
+        self.steps, self.k, self.answered = p("steps"), 0, -1
+        self.done = self.failed = False
+        self.state_pub = self.create_publisher(ActuatorState)
+        self.create_subscription(GripCommand, self.on_grip)
+        self.client = zaber.ZaberClient(port or self._open(), device=p("device"), axis=p("axis"),
+                                        microsteps_per_mm=p("microsteps_per_mm"),
+                                        timeout_s=p("reply_timeout_s"), name=p("port"))
+        self.on_shutdown(self._close)
+        if not self._startup():
+            return
+        self._wait_until = time.monotonic() + p("wait_timeout_s")
+        self._started = False
+        self.create_timer(p("period_s"), self.step)
+
+    def _open(self):
+        import serial     # pyserial; imported here so that tests can pass a port of their own
+        try:
+            return serial.Serial(self.param("port"), self.param("baud"), timeout=0.02)
+        except (serial.SerialException, OSError) as exc:
+            raise ParamError(f"cannot open the Zaber stage's serial port "
+                             f"{self.param('port')}: {exc}") from None
+
+    def _startup(self) -> bool:
+        try:
+            self.client.status()
+        except zaber.ZaberTimeout as exc:
+            self.log(f"linear_actuator: {exc}")
+            self.shutdown("no Zaber device", EXIT_NO_DEVICE)
+            return False
+        try:
+            if self.client.ensure_homed(self.param("home_timeout_s")):
+                self.log("homed the stage (it had no reference position)")
+            self._move_to(self.param("start_mm"), "the move to start_mm")
+        except zaber.ZaberError as exc:
+            self._fault(str(exc))
+            return False
+        self.log(f"at {self.param('start_mm'):g} mm; {self.steps} steps of "
+                 f"{1000 * self.param('travel_mm') / self.steps:.1f} um, one per "
+                 f"{self.param('period_s'):g} s")
+        return True
+
+    def on_grip(self, msg: GripCommand):
+        self.answered = max(self.answered, msg.period)
+
+    def step(self):
+        if self.done or self.failed or self.stopping:
+            return
+        k = self.k
+        if not self._started:
+            short = self.state_pub.subscriber_count() < self.param("wait_subscribers")
+            if short and time.monotonic() < self._wait_until:
+                return                 # no step before the tick has its readers (slow joiner)
+            if short:
+                self.warn(f"fewer than {self.param('wait_subscribers')} reader(s) of "
+                          f"{self.state_pub.topic} after {self.param('wait_timeout_s'):g} s; starting")
+            self._started = True
+        if self.param("lockstep") and k > 0 and self.answered < k - 1:
+            self.warn(f"step {k} waits for the grip command of period {k - 1}", throttle_s=5.0)
+            return
+        target = step_target_mm(k, self.param("start_mm"), self.param("travel_mm"), self.steps)
+        try:
+            position = self._move_to(target, f"step {k}")
+        except zaber.ZaberError as exc:
+            self._fault(f"step {k}: {exc}")
+            return
+        self.state_pub.publish(ActuatorState(position_mm=position, step_index=k, busy=False))
+        self.k += 1
+        if self.k >= self.steps:
+            self.done = True
+            self.log(f"protocol done: {self.steps} steps, at {position:.4f} mm")
+            if self.param("exit_when_done"):
+                self.shutdown("protocol done")
+
+    def _move_to(self, target_mm: float, during: str) -> float:
+        """Moves to `target_mm` within the configured limits and returns the position read back."""
+        lo, hi = self.param("limit_min_mm"), self.param("limit_max_mm")
+        if not lo <= target_mm <= hi:
+            raise zaber.ZaberError(f"target {target_mm:.4f} mm is outside the configured travel "
+                                   f"[{lo}, {hi}] mm: refused")
+        self.client.move_abs_mm(target_mm)
+        self.client.wait_idle(self.param("move_timeout_s") if during.startswith("step")
+                              else self.param("home_timeout_s"), during)
+        position = self.client.position_mm()
+        if abs(position - target_mm) > self.param("tolerance_mm"):
+            raise zaber.ZaberError(f"stage at {position:.4f} mm after {during}, target "
+                                   f"{target_mm:.4f} mm (tolerance {self.param('tolerance_mm')} mm)")
+        return position
+
+    def _fault(self, text: str):
+        self.failed = True
+        try:
+            self.client.stop()
+        except zaber.ZaberError:
+            pass
+        self.log(f"linear_actuator: FAULT: {text}; the stage is stopped, the run cannot go on")
+        self.shutdown("stage fault", EXIT_FAULT)
+
+    def _close(self):
+        self.log(f"steps done {self.k}/{self.steps}; serial {dict(self.client.stats)}")
+        close = getattr(self.client.port, "close", None)
+        if close is not None:
+            close()
+
+
+def main(argv=None):
+    return run_node(LinearActuator, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

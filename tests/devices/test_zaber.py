@@ -1,0 +1,190 @@
+"""Zaber ASCII: checksums and lines (golden and fuzzed), and the client against the emulated
+stage on a pty: ids, checksums, BUSY then IDLE, limits, WR until homed, alerts, and every
+emulator fault with the behaviour the client owes it."""
+from __future__ import annotations
+
+import pytest
+import serial
+from hypothesis import given, settings, strategies as st
+
+from incipient_slip.devices import zaber as z
+from incipient_slip.devices.zaber_emulator import ZaberEmulator
+
+pytestmark = pytest.mark.timeout(60)
+
+
+def test_checksum_matches_zabers_documented_example():
+    assert z.format_command(1, 1, 2, "move rel 1000") == b"/1 1 02 move rel 1000:E1\n"
+
+
+def test_reply_with_id_and_checksum_parses():
+    body = "01 1 07 OK BUSY -- 0"
+    reply = z.parse_line(f"@{body}:{z.checksum(body)}")
+    assert reply == z.Reply("@", 1, 1, 7, "OK", "BUSY", "--", "0") and reply.busy
+
+
+def test_reply_alert_and_info_without_ids_parse():
+    assert z.parse_line("@01 0 RJ IDLE WR BADDATA") == z.Reply("@", 1, 0, None, "RJ", "IDLE", "WR", "BADDATA")
+    assert z.parse_line("!01 1 IDLE FS") == z.Reply("!", 1, 1, None, status="IDLE", warning="FS")
+    assert z.parse_line("#01 1 07 some text").data == "some text"
+
+
+@pytest.mark.parametrize("line, reason", [
+    ("@01 1 OK IDLE -- 0:00", "checksum"), ("@01 1 OK IDLE", "garbled"), ("@xx 1 OK IDLE -- 0", "garbled"),
+    ("@01 1 OK DONE -- 0", "garbled"), ("hello", "garbled"), ("@01 1 OK\x07IDLE -- 0", "garbled"), ("", "garbled"),
+])
+def test_malformed_lines_are_named(line, reason):
+    with pytest.raises(z.ZaberLineError) as err:
+        z.parse_line(line)
+    assert err.value.reason == reason
+
+
+@settings(max_examples=500, deadline=None)
+@given(st.text(max_size=60))
+def test_any_line_parses_or_is_a_line_error(line):
+    try:
+        reply = z.parse_line(line)
+    except z.ZaberLineError:
+        return
+    assert reply.kind in "@!#"
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(1, 99), st.integers(0, 9), st.one_of(st.none(), st.integers(0, 99)),
+       st.sampled_from(["OK", "RJ"]), st.sampled_from(["IDLE", "BUSY"]),
+       st.sampled_from(["--", "WR", "FS", "NI"]), st.sampled_from(["0", "12345", "-7", "BADDATA"]),
+       st.booleans())
+def test_reply_fields_round_trip(device, axis, mid, flag, status, warning, data, with_cc):
+    body = f"{device:02d} {axis}" + (f" {mid:02d}" if mid is not None else "") + f" {flag} {status} {warning} {data}"
+    line = f"@{body}" + (f":{z.checksum(body)}" if with_cc else "")
+    assert z.parse_line(line) == z.Reply("@", device, axis, mid, flag, status, warning, data)
+
+
+# --- the client against the emulator ---------------------------------------------------------
+
+@pytest.fixture
+def stage():
+    """start(**emulator_kw) -> (emulator, client) over a real pty with pyserial."""
+    opened = []
+
+    def start(**kw):
+        kw.setdefault("speed_mm_s", 200.0)
+        emulator = ZaberEmulator(**kw).start()
+        port = serial.Serial(emulator.port, 115200, timeout=0.02)
+        client = z.ZaberClient(port, microsteps_per_mm=emulator.microsteps_per_mm,
+                               timeout_s=0.3, name=emulator.port)
+        opened.append((emulator, port))
+        return emulator, client
+
+    yield start
+    for emulator, port in opened:
+        port.close()
+        emulator.stop()
+
+
+def test_wr_until_homed_then_clear(stage):
+    emulator, client = stage()
+    assert client.status().warning == "WR"
+    assert client.ensure_homed(5.0) is True
+    assert client.status().warning == "--" and "home" in emulator.commands
+    assert client.ensure_homed(5.0) is False
+
+
+def test_every_command_carries_an_id_and_a_checksum_and_replies_match(stage):
+    emulator, client = stage(homed=True, reply_checksums=True)
+    for _ in range(3):
+        client.status()
+    assert client.last_reply.message_id == 2 and emulator.stats["bad_command_checksums"] == 0
+    assert client.stats["dropped"] == 0
+
+
+def test_move_is_busy_then_idle_at_the_target(stage):
+    emulator, client = stage(homed=True, speed_mm_s=20.0)
+    assert client.move_abs_mm(4.0).busy
+    assert not client.wait_idle(5.0).busy
+    assert client.position_mm() == pytest.approx(4.0, abs=1e-4)
+    client.move_rel_mm(-1.5)
+    client.wait_idle(5.0)
+    assert client.position_mm() == pytest.approx(2.5, abs=1e-4)
+
+
+def test_move_beyond_the_limit_is_rejected_with_baddata_explained(stage):
+    emulator, client = stage(homed=True, limit_max_mm=30.0)
+    with pytest.raises(z.ZaberRejected) as err:
+        client.move_abs_mm(31.0)
+    assert err.value.reason == "BADDATA" and "limit" in str(err.value)
+    assert client.position_mm() == 0.0
+
+
+def test_unknown_command_is_badcommand(stage):
+    emulator, client = stage(homed=True)
+    with pytest.raises(z.ZaberRejected) as err:
+        client.command("fly away")
+    assert err.value.reason == "BADCOMMAND" and "does not know" in str(err.value)
+
+
+def test_alert_after_a_move_is_collected_not_taken_for_a_reply(stage):
+    emulator, client = stage(homed=True, alerts=True)
+    client.move_abs_mm(1.0)
+    client.wait_idle(5.0)
+    client.status()
+    assert client.alerts and client.alerts[-1].status == "IDLE"
+
+
+def test_no_reply_to_a_poll_is_retried(stage):
+    emulator, client = stage(homed=True)
+    emulator.inject("no_reply")
+    assert client.status().flag == "OK"
+    assert client.stats["timeouts"] == 1
+
+
+def test_no_reply_to_a_relative_move_is_a_timeout_never_a_second_move(stage):
+    emulator, client = stage(homed=True)
+    emulator.inject("no_reply")
+    with pytest.raises(z.ZaberTimeout, match="no reply"):
+        client.move_rel_mm(1.0)
+    assert emulator.commands.count("move rel %d" % client.to_microsteps(1.0)) == 1
+
+
+def test_garbled_reply_is_dropped_and_the_poll_retried(stage):
+    emulator, client = stage(homed=True)
+    emulator.inject("garble")
+    assert client.status().flag == "OK"
+    assert client.stats["dropped:garbled"] == 1
+
+
+def test_reply_with_a_wrong_checksum_is_dropped(stage):
+    emulator, client = stage(homed=True)
+    emulator.inject("bad_checksum")
+    assert client.position_mm() == 0.0
+    assert client.stats["dropped:checksum"] == 1
+
+
+def test_late_reply_to_a_timed_out_command_is_not_taken_for_the_next(stage):
+    emulator, client = stage(homed=True)
+    client.port.write(z.format_command(1, 1, 42, "get pos"))    # an answer nobody waits for
+    client.move_abs_mm(2.0)
+    assert client.last_reply.message_id != 42
+    client.wait_idle(5.0)
+    assert client.stats["dropped:foreign_reply"] == 1
+
+
+def test_reset_mid_move_is_a_wr_fault(stage):
+    emulator, client = stage(homed=True, speed_mm_s=1.0)
+    client.move_abs_mm(20.0)
+    emulator.reset()
+    with pytest.raises(z.ZaberFault) as err:
+        client.wait_idle(5.0)
+    assert err.value.flag == "WR" and "reference" in str(err.value)
+
+
+def test_stall_is_an_fs_fault_cleared_by_warnings_clear(stage):
+    emulator, client = stage(homed=True, speed_mm_s=50.0)
+    emulator.stall_at(3.0)
+    client.move_abs_mm(10.0)
+    with pytest.raises(z.ZaberFault) as err:
+        client.wait_idle(5.0)
+    assert err.value.flag == "FS" and "stalled" in str(err.value)
+    assert client.position_mm() == pytest.approx(3.0, abs=1e-4)
+    assert client.clear_warnings() == ["FS"]
+    assert client.status().warning == "--"
