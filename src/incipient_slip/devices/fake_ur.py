@@ -88,15 +88,20 @@ SAFETY_NORMAL, SAFETY_PROTECTIVE, SAFETY_ROBOT_ESTOP = 1, 3, 7
 FINISH_M = 1e-6
 
 
-class _Rtde:
-    """One RTDE connection's recipes and streaming state."""
+class _Conn:
+    """One client connection: its kind, input and output buffers, and (RTDE) recipes."""
 
-    def __init__(self):
+    def __init__(self, kind: str):
+        self.kind = kind
         self.buf = b""
-        self.inputs: dict[int, tuple[list, str]] = {}
-        self.outputs: tuple | None = None      # (names, struct, period_s)
+        self.out = bytearray()                  # what the client has not taken yet
+        self.inputs: dict[int, tuple[list, struct.Struct]] = {}
+        self.outputs: tuple | None = None       # (names, struct, period_s)
         self.started = False
         self.next_due = 0.0
+
+
+MAX_BACKLOG = 64 * 1024    # a client this far behind gets no new data packages until it reads
 
 
 class FakeURController:
@@ -235,14 +240,17 @@ class FakeURController:
         while not self._stop.is_set():
             now = time.monotonic()
             with self._lock:
-                due = [st.next_due for st in self._conns.values() if isinstance(st, _Rtde) and st.started]
+                due = [st.next_due for st in self._conns.values() if st.started]
             wait = min([0.01] + [max(0.0, d - now) for d in due])
-            for key, _ in self._sel.select(wait):
+            for key, events in self._sel.select(wait):
                 kind = key.data
                 with self._lock:
                     if kind[0] == "listen":
                         self._accept(key.fileobj, kind[1])
-                    else:
+                        continue
+                    if events & selectors.EVENT_WRITE:
+                        self._flush(key.fileobj)
+                    if events & selectors.EVENT_READ and key.fileobj in self._conns:
                         self._read(key.fileobj, kind)
             with self._lock:
                 self._step(time.monotonic())
@@ -253,10 +261,9 @@ class FakeURController:
             conn, _ = listener.accept()
         except OSError:
             return
-        conn.setblocking(True)
+        conn.setblocking(False)
         conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        state = _Rtde() if kind == "rtde" else {"kind": kind, "buf": b""}
-        self._conns[conn] = state
+        self._conns[conn] = _Conn(kind)
         self._sel.register(conn, selectors.EVENT_READ, ("conn", kind))
         self.stats[f"connections:{kind}"] += 1
         if kind == "dashboard":
@@ -286,26 +293,51 @@ class FakeURController:
                 payload, state.buf = state.buf[3:size], state.buf[size:]
                 self._rtde(conn, state, mtype, payload)
         elif kind[1] == "dashboard":
-            state["buf"] += data
-            while b"\n" in state["buf"]:
-                line, state["buf"] = state["buf"].split(b"\n", 1)
+            state.buf += data
+            while b"\n" in state.buf and conn in self._conns:
+                line, state.buf = state.buf.split(b"\n", 1)
                 self._dashboard(conn, line.decode("utf-8", "replace").strip())
         else:
-            state["buf"] += data
+            state.buf += data
             self._script(state)
 
-    def _send(self, conn, data: bytes) -> None:
+    def _send(self, conn, data: bytes, droppable: bool = False) -> None:
+        """Queues `data` for the client and sends what the socket takes now, never blocking
+        (one client that stops reading must not stall the others); a droppable data package
+        is skipped while the client is more than MAX_BACKLOG behind."""
+        state = self._conns.get(conn)
+        if state is None:
+            return
+        if droppable and len(state.out) > MAX_BACKLOG:
+            self.stats["rtde_packages_skipped"] += 1
+            return
+        state.out += data
+        self._flush(conn)
+
+    def _flush(self, conn) -> None:
+        state = self._conns.get(conn)
+        if state is None:
+            return
         try:
-            conn.sendall(data)
+            sent = conn.send(state.out) if state.out else 0
+        except BlockingIOError:
+            sent = 0
         except OSError:
             self._drop(conn)
+            return
+        del state.out[:sent]
+        events = selectors.EVENT_READ | (selectors.EVENT_WRITE if state.out else 0)
+        try:
+            self._sel.modify(conn, events, ("conn", state.kind))
+        except (KeyError, ValueError):
+            pass
 
     # --- RTDE ---
 
-    def _reply(self, conn, mtype: int, payload: bytes = b"") -> None:
-        self._send(conn, struct.pack(">HB", len(payload) + 3, mtype) + payload)
+    def _reply(self, conn, mtype: int, payload: bytes = b"", droppable: bool = False) -> None:
+        self._send(conn, struct.pack(">HB", len(payload) + 3, mtype) + payload, droppable)
 
-    def _rtde(self, conn, st: _Rtde, mtype: int, payload: bytes) -> None:
+    def _rtde(self, conn, st: _Conn, mtype: int, payload: bytes) -> None:
         self.stats[f"rtde:{chr(mtype)}"] += 1
         if mtype == RTDE_REQUEST_PROTOCOL_VERSION:
             self._reply(conn, mtype, b"\x01")
@@ -390,7 +422,7 @@ class FakeURController:
 
     def _stream(self, now: float) -> None:
         for conn, st in list(self._conns.items()):
-            if not isinstance(st, _Rtde) or not st.started or now < st.next_due:
+            if not st.started or now < st.next_due:
                 continue
             names, packer, period = st.outputs
             st.next_due += period
@@ -400,16 +432,16 @@ class FakeURController:
             for name in names:
                 v = self._value(name, now)
                 values.extend(v if isinstance(v, tuple) else (v,))
-            self._reply(conn, RTDE_DATA_PACKAGE, packer.pack(*values))
+            self._reply(conn, RTDE_DATA_PACKAGE, packer.pack(*values), droppable=True)
 
     # --- the program (ur-rtde's control script, as its register handshake) ---
 
-    def _script(self, state: dict) -> None:
-        text = state["buf"].decode("utf-8", "replace")
+    def _script(self, state: _Conn) -> None:
+        text = state.buf.decode("utf-8", "replace")
         lines = text.split("\n")
         if not lines[0].startswith("def ") or not any(line == "end" for line in lines[1:]):
             return                                   # program not complete yet
-        state["buf"] = b""
+        state.buf = b""
         self.scripts.append(text)
         self.stats["scripts"] += 1
         if self.protective or self.estop or not self.powered:
@@ -508,7 +540,7 @@ class FakeURController:
             reply = "Brake releasing"
         elif line == "quit":
             self._send(conn, b"Disconnected\n")
-            self._drop(conn)
+            self._drop(conn)        # what is still queued is lost, as when the server hangs up
             return
         else:
             reply = f"could not understand: '{line}'"

@@ -13,14 +13,16 @@ from incipient_slip.messages.types import (
     BIOTAC_CHANNELS, BIOTAC_ERROR_WORDS, DEFAULT_TOPICS, ELECTRODE_COUNT, MESSAGE_TYPES, METHODS,
     MOCAP_RATE_HZ, PAC_RATE_HZ, PAC_SAMPLES_PER_FRAME, PERIOD_NS, RUN_EVENT_KINDS, SLOW_RATE_HZ,
     ActuatorCommand, ActuatorState, BiotacPac, BiotacSlow, BiotacStatus, BiotacTare, GripCommand,
-    Heartbeat, ObjectPose, PztCommand, PztOutput, PztState, RobotState, RunEvent, SlipEstimate,
+    Heartbeat, ObjectPose, PztCommand, PztOutput, PztState, RobotRecover, RobotState, RunEvent,
+    SlipEstimate,
 )
 
 __all__ = [
     "MessageError", "Message", "encode", "decode", "decode_any", "topic_frame", "split_frames",
     "to_plain", "MESSAGE_TYPES", "DEFAULT_TOPICS", "MAX_BODY_BYTES", "MAX_STRING",
     "BiotacPac", "BiotacSlow", "PztCommand", "PztState", "ObjectPose", "ActuatorCommand",
-    "ActuatorState", "GripCommand", "RobotState", "SlipEstimate", "RunEvent", "Heartbeat",
+    "ActuatorState", "GripCommand", "RobotState", "RobotRecover", "SlipEstimate", "RunEvent",
+    "Heartbeat",
     "PAC_SAMPLES_PER_FRAME", "ELECTRODE_COUNT", "METHODS", "RUN_EVENT_KINDS",
     "PERIOD_NS", "PAC_RATE_HZ", "SLOW_RATE_HZ", "MOCAP_RATE_HZ",
     "BiotacStatus", "BiotacTare", "PztOutput", "BIOTAC_CHANNELS", "BIOTAC_ERROR_WORDS",

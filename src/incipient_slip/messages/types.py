@@ -22,6 +22,7 @@ ADC_MAX = 4095                  # the BioTac's 12-bit ADC
 STEP_LIMIT = (1 << 32) - 1      # steps and periods fit a uint32 (68 years of periods)
 METHODS = ("injection", "vibrotactile", "e19", "e10", "e4", "e1", "none")
 RUN_EVENT_KINDS = ("start", "step", "success", "failure", "fault", "end")
+ROBOT_STATES = ("ready", "stopped", "reconnecting")
 _NO_PERIOD = "-1: not tied to a period"
 # The BioTac reader's per-channel fault counters follow BIOTAC_CHANNELS; its error-word counts
 # follow BIOTAC_ERROR_WORDS (the sensor's 0xA5xx replies, devices/biotac.py).
@@ -178,6 +179,19 @@ class RobotState(Message):
     normal_force_kpa: float = real(0.0, unit="kPa")
     tcp_z_mm: float = real(0.0, unit="mm")
     protective_stop: bool = flag(False)
+    emergency_stop: bool = flag(False)
+    program_running: bool = flag(True)
+    state: str = text("ready", choices=ROBOT_STATES,
+                      note="stopped: holds until an explicit recovery (slip robot recover)")
+    period: int = integer("int64", -1, low=-1, high=STEP_LIMIT, note="-1: no command applied yet")
+
+
+@dataclass(frozen=True, eq=False)
+class RobotRecover(Message):
+    TOPIC: ClassVar[str] = "/robot/recover"
+    DESCRIPTION: ClassVar[str] = ("An operator's explicit request that the robot node recover "
+                                  "from a stop (never automatic)")
+    note: str = text("")
 
 
 @dataclass(frozen=True, eq=False)
@@ -220,6 +234,6 @@ class Heartbeat(Message):
 MESSAGE_TYPES: dict[str, type[Message]] = {
     cls.__name__: cls for cls in (
         BiotacPac, BiotacSlow, BiotacStatus, BiotacTare, PztCommand, PztState, PztOutput, ObjectPose, ActuatorCommand, ActuatorState,
-        GripCommand, RobotState, SlipEstimate, RunEvent, Heartbeat)
+        GripCommand, RobotState, RobotRecover, SlipEstimate, RunEvent, Heartbeat)
 }
 DEFAULT_TOPICS: dict[str, type[Message]] = {cls.TOPIC: cls for cls in MESSAGE_TYPES.values()}

@@ -1,0 +1,268 @@
+"""The UR5 path: the press loop (pure), ur-rtde's own interfaces against the fake controller,
+and the ur5 node end to end: period checks, holds, stops that wait for an explicit recovery.
+The fake controller runs as its own process (ur-rtde's constructors hold the GIL)."""
+from __future__ import annotations
+
+import json
+import random
+import subprocess
+import sys
+import time
+
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from incipient_slip.nodes.ur5 import PressLoop, explain
+
+pytestmark = pytest.mark.timeout(90)
+LOOP = PressLoop(gain_mm_per_kpa=0.1, max_step_mm=0.5, safety_limit_kpa=6.0, max_press_mm=10.0, max_lift_mm=20.0)
+
+
+def test_press_loop_moves_towards_the_target_force():
+    assert LOOP.next_depth_mm(1.0, 4.0, 2.0) == (pytest.approx(1.2), "")
+    assert LOOP.next_depth_mm(1.0, 2.0, 4.0) == (pytest.approx(0.8), "")
+
+
+def test_press_loop_clamps_the_target_to_the_safety_limit_and_retracts_above_it():
+    assert LOOP.next_depth_mm(1.0, 50.0, 5.9)[0] == pytest.approx(1.01)     # target clamped at 6.0
+    depth, why = LOOP.next_depth_mm(1.0, 3.0, 6.5)
+    assert depth == pytest.approx(0.5) and "safety limit" in why
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(-30, 30), st.floats(0, 100), st.floats(-5, 100))
+def test_press_loop_never_leaves_its_workspace_or_exceeds_one_step(depth, target, measured):
+    new, _ = LOOP.next_depth_mm(depth, target, measured)
+    assert -20.0 <= new <= 10.0
+    if -20.0 <= depth <= 10.0:
+        assert abs(new - depth) <= 0.5 + 1e-9
+
+
+def test_connect_errors_name_the_fix():
+    assert "Fieldbus" in explain(RuntimeError("One of the RTDE input registers are already in use!"), "h")
+    assert "Remote Control" in explain(RuntimeError("ur_rtde: Please enable remote control on the robot!"), "h")
+
+
+# --- against the fake controller -------------------------------------------------------------
+
+rtde_control = pytest.importorskip("rtde_control", reason="ur-rtde has no wheel for this Python (CPython 3.10-3.12, x86-64 Linux)")
+rtde_receive = pytest.importorskip("rtde_receive", reason="ur-rtde has no wheel for this Python")
+
+
+class Fake:
+    """The fake controller process on its own loopback address, driven through stdin."""
+
+    def __init__(self, *extra):
+        for _ in range(20):
+            self.address = f"127.0.{random.randint(1, 254)}.{random.randint(2, 254)}"
+            self.proc = subprocess.Popen([sys.executable, "-m", "incipient_slip.devices.fake_ur",
+                                          "--address", self.address, *extra],
+                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+            line = self.proc.stdout.readline()
+            if line.startswith("{"):
+                return
+            self.proc.wait()
+        raise RuntimeError("no free loopback address for the fake controller")
+
+    def __call__(self, control: str) -> dict:
+        self.proc.stdin.write(control + "\n")
+        self.proc.stdin.flush()
+        return json.loads(self.proc.stdout.readline())
+
+    def close(self):
+        if self.proc.poll() is None:
+            self.proc.stdin.close()
+            self.proc.wait(timeout=10)
+
+
+@pytest.fixture
+def fake():
+    made = []
+
+    def start(*extra):
+        made.append(Fake(*extra))
+        return made[-1]
+
+    yield start
+    for f in made:
+        f.close()
+
+
+def test_ur_rtde_moves_the_fake_tcp_and_sees_a_protective_stop(fake):
+    ur = fake()
+    receive = rtde_receive.RTDEReceiveInterface(ur.address, 125.0, ["timestamp", "actual_TCP_pose",
+                                                                     "safety_status_bits", "runtime_state"])
+    control = rtde_control.RTDEControlInterface(ur.address, 125.0)
+    try:
+        assert control.isProgramRunning()
+        pose = receive.getActualTCPPose()
+        pose[2] -= 0.002
+        assert control.moveL(pose, 0.05, 0.5) is True
+        assert ur("state")["tcp_pose"][2] == pytest.approx(pose[2], abs=1e-6)
+        ur("protective_stop")
+        while not receive.isProtectiveStopped():
+            time.sleep(0.005)
+        assert control.moveL(pose, 0.05, 0.5) is False
+        assert not control.isProgramRunning()
+    finally:
+        control.disconnect()
+        receive.disconnect()
+
+
+def test_in_use_registers_raise_at_connect(fake):
+    ur = fake()
+    ur("in_use 1")
+    with pytest.raises(RuntimeError, match="in use"):
+        rtde_control.RTDEControlInterface(ur.address, 125.0)
+
+
+def test_remote_control_off_raises_at_connect(fake):
+    ur = fake("--no-remote-control")
+    with pytest.raises(RuntimeError, match="remote control"):
+        rtde_control.RTDEControlInterface(ur.address, 125.0)
+
+
+# --- the ur5 node ------------------------------------------------------------------------------
+
+from incipient_slip.graph.runtime import Node                          # noqa: E402
+from incipient_slip.messages import BiotacSlow, GripCommand, RobotRecover, RobotState  # noqa: E402
+from incipient_slip.nodes.ur5 import UR5                               # noqa: E402
+import numpy as np                                                     # noqa: E402
+
+
+class Probe(Node):
+    def __init__(self, graph_dir):
+        super().__init__("probe", graph_dir=graph_dir, heartbeat_s=0)
+        self.states: list[RobotState] = []
+        self.create_subscription(RobotState, self.states.append)
+        self.grip = self.create_publisher(GripCommand)
+        self.pdc = self.create_publisher(BiotacSlow)
+        self.recover = self.create_publisher(RobotRecover)
+
+    def force(self, kpa: float):
+        self.pdc.publish(BiotacSlow(electrode_counts=np.zeros(19, np.uint16), pdc_counts=2000 + round(kpa * 1000 / 36.5),
+                                    pdc_tare_counts=2000))
+
+
+def run(nodes, predicate, timeout_s=20.0):
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        assert time.monotonic() < deadline, "timed out"
+        for node in nodes:
+            node.spin_once(0.002)
+
+
+@pytest.fixture
+def robot(fake, graph):
+    made = []
+
+    def start(**params):
+        ur = fake()
+        node = UR5(params={"robot_address": ur.address, "gain_mm_per_kpa": 0.1, **params},
+                   graph_dir=graph.dir, heartbeat_s=0)
+        probe = Probe(graph.dir)
+        made.append((node, probe))
+        nodes = (node, probe)
+        run(nodes, lambda: probe.grip.subscriber_count() >= 1 and probe.pdc.subscriber_count() >= 1
+            and probe.recover.subscriber_count() >= 1 and any(s.state == "ready" for s in probe.states))
+        return ur, node, probe, nodes
+
+    yield start
+    for node, probe in made:
+        node.close()
+        probe.close()
+
+
+def test_each_period_presses_towards_the_target_and_reports_it(robot):
+    ur, node, probe, nodes = robot()
+    z0 = ur("state")["tcp_pose"][2]
+    probe.force(2.0)
+    run(nodes, lambda: math_isfinite(node.measured_kpa))
+    probe.grip.publish(GripCommand(normal_force_kpa=4.0, period=0))
+    run(nodes, lambda: any(s.period == 0 for s in probe.states))
+    assert ur("state")["tcp_pose"][2] == pytest.approx(z0 - 0.0002, abs=1e-6)   # 0.1 mm/kPa x 2 kPa
+    state = next(s for s in probe.states if s.period == 0)
+    # the measured TCP, one RTDE package (8 ms) after the move ended: within 10 um of the target
+    assert state.state == "ready" and state.tcp_z_mm == pytest.approx((z0 - 0.0002) * 1000, abs=0.01)
+
+
+def test_a_command_whose_period_is_not_the_next_is_refused(robot):
+    ur, node, probe, nodes = robot()
+    probe.force(3.0)
+    run(nodes, lambda: math_isfinite(node.measured_kpa))
+    probe.grip.publish(GripCommand(normal_force_kpa=3.5, period=0))
+    run(nodes, lambda: any(s.period == 0 for s in probe.states))
+    probe.grip.publish(GripCommand(normal_force_kpa=3.5, period=2))
+    run(nodes, lambda: node.refused == 1)
+    assert ur("state")["commands"].count(3) == 1
+
+
+def test_protective_stop_holds_until_an_explicit_recovery(robot):
+    ur, node, probe, nodes = robot()
+    probe.force(3.0)
+    run(nodes, lambda: math_isfinite(node.measured_kpa))
+    ur("protective_stop")
+    run(nodes, lambda: any(s.state == "stopped" and s.protective_stop for s in probe.states))
+    probe.grip.publish(GripCommand(normal_force_kpa=4.0, period=0))
+    probe.force(3.0)
+    run(nodes, lambda: node.refused == 1)        # the link refuses it: stopped
+    assert ur("state")["commands"] == [] and ur("state")["protective_stop"]
+    probe.recover.publish(RobotRecover(note="test"))
+    run(nodes, lambda: node.recoveries == [True])
+    assert probe.states[-1].state == "ready"
+    assert not ur("state")["protective_stop"] and ur("state")["scripts"] == 2
+    probe.force(3.0)
+    probe.grip.publish(GripCommand(normal_force_kpa=4.0, period=1))
+    run(nodes, lambda: any(s.period == 1 for s in probe.states))
+
+
+def test_no_controller_is_exit_2_naming_the_address(graph):
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.ur5", "robot_address:=127.0.0.1",
+                        "connect_timeout_s:=0.5"])
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 2 and "no UR controller at 127.0.0.1:30004" in err.decode()
+
+
+def test_in_use_registers_are_exit_2_naming_the_fieldbus_fix(fake, graph):
+    ur = fake()
+    ur("in_use 1")
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.ur5", f"robot_address:={ur.address}"])
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 2 and "Fieldbus" in err.decode()
+
+
+def math_isfinite(x):
+    return x == x and abs(x) != float("inf")
+
+
+def test_emergency_stop_refuses_recovery_until_released(robot):
+    ur, node, probe, nodes = robot()
+    ur("emergency_stop")
+    run(nodes, lambda: any(s.state == "stopped" and s.emergency_stop for s in probe.states))
+    probe.recover.publish(RobotRecover())
+    run(nodes, lambda: node.recoveries == [False])
+    assert probe.states[-1].state == "stopped" and ur("state")["scripts"] == 1
+    ur("release_emergency_stop")
+    run(nodes, lambda: not probe.states[-1].emergency_stop)
+    probe.recover.publish(RobotRecover())
+    run(nodes, lambda: node.recoveries == [False, True])
+    assert probe.states[-1].state == "ready"
+    assert ur("state")["powered"] and ur("state")["scripts"] == 2
+
+
+def test_stopped_program_is_a_stop(robot):
+    ur, node, probe, nodes = robot()
+    ur("stop_program")
+    run(nodes, lambda: any(s.state == "stopped" and not s.program_running for s in probe.states))
+
+
+def test_dropped_connection_is_recovered_and_the_next_period_applies(robot):
+    ur, node, probe, nodes = robot()
+    ur("drop_connections")
+    run(nodes, lambda: any(s.state == "reconnecting" for s in probe.states))
+    run(nodes, lambda: probe.states[-1].state == "ready")
+    probe.force(3.0)
+    run(nodes, lambda: time.monotonic() - node.measured_at < 0.1)
+    probe.grip.publish(GripCommand(normal_force_kpa=4.0, period=0))
+    run(nodes, lambda: any(s.period == 0 for s in probe.states))
+    assert ur("state")["commands"][-1] == 3
