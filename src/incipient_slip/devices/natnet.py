@@ -435,7 +435,12 @@ class NatNetClient:
     def open(self) -> "NatNetClient":
         """Opens the sockets (OSError naming the port when one cannot be bound)."""
         cmd = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        cmd.bind((self.local_address, 0))
+        try:
+            cmd.bind((self.local_address, 0))
+        except OSError as exc:
+            cmd.close()
+            raise OSError(f"NatNet local_address {self.local_address}: {exc.strerror} (is it an "
+                          f"address of this computer?)") from None
         data = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         data.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:

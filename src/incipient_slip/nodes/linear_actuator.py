@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import time
 
-from incipient_slip.devices import zaber
+from incipient_slip.devices import rig_config, zaber
 from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.messages import ActuatorState, GripCommand
@@ -42,6 +42,7 @@ class LinearActuator(Node):
     INPUTS = {GripCommand.TOPIC: GripCommand}
     OUTPUTS = {ActuatorState.TOPIC: ActuatorState}
     PARAMS = {
+        "rig_config": Param("", help="config/rig.yaml: unset parameters from its zaber section"),
         "port": Param("/dev/ttyUSB0", help="serial port of the Zaber stage"),
         "baud": Param(zaber.DEFAULT_BAUD, choices=(9600, 19200, 38400, 57600, 115200), help="baud rate"),
         "device": Param(1, lo=1, hi=99, help="device address"),
@@ -54,6 +55,7 @@ class LinearActuator(Node):
         "limit_min_mm": Param(0.0, lo=-1000.0, hi=1000.0, help="never command below this"),
         "limit_max_mm": Param(50.0, lo=-1000.0, hi=1000.0, help="never command above this"),
         "tolerance_mm": Param(0.005, lo=0.0, hi=1.0, help="read-back position must be this close"),
+        "open_timeout_s": Param(0.0, lo=0.0, hi=600.0, help="keep trying the port and device this long at start"),
         "reply_timeout_s": Param(0.5, lo=0.01, hi=10.0, help="wait this long for a reply"),
         "move_timeout_s": Param(0.4, lo=0.01, hi=60.0, help="a step must finish within this"),
         "home_timeout_s": Param(60.0, lo=0.1, hi=600.0, help="homing must finish within this"),
@@ -65,6 +67,7 @@ class LinearActuator(Node):
 
     def __init__(self, port=None, **kwargs):
         super().__init__("linear_actuator", **kwargs)
+        rig_config.apply(self, "zaber", kwargs.get("params"))
         p = self.param
         if not p("limit_min_mm") <= p("start_mm") <= p("limit_max_mm"):
             raise ParamError(f"start_mm:={p('start_mm')} is outside [limit_min_mm, limit_max_mm]"
@@ -85,19 +88,27 @@ class LinearActuator(Node):
 
     def _open(self):
         import serial     # pyserial; imported here so that tests can pass a port of their own
-        try:
-            return serial.Serial(self.param("port"), self.param("baud"), timeout=0.02)
-        except (serial.SerialException, OSError) as exc:
-            raise ParamError(f"cannot open the Zaber stage's serial port "
-                             f"{self.param('port')}: {exc}") from None
+        deadline = time.monotonic() + self.param("open_timeout_s")
+        while True:
+            try:
+                return serial.Serial(self.param("port"), self.param("baud"), timeout=0.02)
+            except (serial.SerialException, OSError) as exc:
+                if time.monotonic() >= deadline:
+                    raise ParamError(f"cannot open the Zaber stage's serial port "
+                                     f"{self.param('port')}: {exc}") from None
+            time.sleep(0.2)
 
     def _startup(self) -> bool:
-        try:
-            self.client.status()
-        except zaber.ZaberTimeout as exc:
-            self.log(f"linear_actuator: {exc}")
-            self.shutdown("no Zaber device", EXIT_NO_DEVICE)
-            return False
+        deadline = time.monotonic() + self.param("open_timeout_s")
+        while True:
+            try:
+                self.client.status()
+                break
+            except zaber.ZaberTimeout as exc:
+                if time.monotonic() >= deadline:
+                    self.log(f"linear_actuator: {exc}")
+                    self.shutdown("no Zaber device", EXIT_NO_DEVICE)
+                    return False
         try:
             if self.client.ensure_homed(self.param("home_timeout_s")):
                 self.log("homed the stage (it had no reference position)")

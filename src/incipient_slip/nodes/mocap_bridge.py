@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from incipient_slip.devices import natnet as nn
+from incipient_slip.devices import rig_config, natnet as nn
 from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.messages import ObjectPose
@@ -69,6 +69,7 @@ class MocapBridge(Node):
     INPUTS: dict = {}
     OUTPUTS = {ObjectPose.TOPIC: ObjectPose}
     PARAMS = {
+        "rig_config": Param("", help="config/rig.yaml: unset parameters from its natnet section"),
         "server_address": Param("127.0.0.1", help="Motive's address (its Local Interface)"),
         "local_address": Param("127.0.0.1", help="this computer's address on Motive's network"),
         "command_port": Param(nn.DEFAULT_COMMAND_PORT, lo=1, hi=65535, help="Motive command port"),
@@ -85,6 +86,7 @@ class MocapBridge(Node):
 
     def __init__(self, **kwargs):
         super().__init__("mocap_bridge", **kwargs)
+        rig_config.apply(self, "natnet", kwargs.get("params"))
         p = self.param
         self.body_id, self.rail_axis = p("body_id"), p("rail_axis")
         self.client = nn.NatNetClient(
@@ -93,10 +95,15 @@ class MocapBridge(Node):
             command_port=p("command_port"), data_port=p("data_port"), multicast=p("multicast"),
             multicast_address=_address("multicast_address", p("multicast_address")),
             no_data_s=p("no_data_s"), connect_timeout_s=p("connect_timeout_s"))
-        try:
-            self.client.open()
-        except OSError as exc:
-            raise ParamError(str(exc)) from None
+        opened_by = time.monotonic() + p("startup_timeout_s")
+        while True:      # the network (or its address) may come up a little after the node
+            try:
+                self.client.open()
+                break
+            except OSError as exc:
+                if time.monotonic() >= opened_by:
+                    raise ParamError(str(exc)) from None
+                time.sleep(0.2)
         self.on_shutdown(self._close)
         self.skipped = {"missing": 0, "untracked": 0, "non-finite": 0}
         self.published = 0

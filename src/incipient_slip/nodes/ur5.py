@@ -30,6 +30,7 @@ import time
 from dataclasses import dataclass
 
 from incipient_slip import control
+from incipient_slip.devices import rig_config
 from incipient_slip.graph.params import Param
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.messages import BiotacSlow, GripCommand, RobotRecover, RobotState
@@ -95,6 +96,7 @@ class LinkConfig:
     press_axis: int
     press_sign: float
     connect_timeout_s: float
+    startup_timeout_s: float = 0.0
 
 
 def link_main(cfg: LinkConfig, jobs, events, start_pose, depth_mm: float) -> None:
@@ -119,8 +121,20 @@ class RobotLink:
         self.snapshot = {"state": "ready", "tcp_pose": None, "protective_stop": False,
                          "emergency_stop": False, "program_running": False}
         self.control = self.receive = None
+        self.parent = os.getppid()      # the node; this process ends when it is gone
 
     def _connect(self) -> None:
+        """Both interfaces, retried until `startup_timeout_s` has passed; RobotError after."""
+        deadline = time.monotonic() + self.cfg.startup_timeout_s
+        while True:
+            try:
+                return self._connect_once()
+            except RobotError:
+                if time.monotonic() >= deadline or os.getppid() != self.parent:
+                    raise
+                time.sleep(0.5)
+
+    def _connect_once(self) -> None:
         try:      # a fast check first: ur-rtde's connect holds the GIL and may wait long
             socket.create_connection((self.host, RTDE_PORT), timeout=self.cfg.connect_timeout_s).close()
         except OSError as exc:
@@ -153,7 +167,7 @@ class RobotLink:
                 job = self.jobs.get(timeout=0.05)
             except queue.Empty:
                 job = None
-            if job is not None and job[0] == "quit":
+            if (job is not None and job[0] == "quit") or os.getppid() != self.parent:
                 break
             if not self._refresh():
                 self.events.put(("dropped", f"robot {self.host}: RTDE connection lost; starting "
@@ -255,6 +269,7 @@ class UR5(Node):
               RobotRecover.TOPIC: RobotRecover}
     OUTPUTS = {RobotState.TOPIC: RobotState}
     PARAMS = {
+        "rig_config": Param("", help="config/rig.yaml: unset parameters from its ur5 section"),
         "robot_address": Param("192.168.1.5", help="the controller's IP address"),
         "rtde_hz": Param(125.0, lo=1.0, hi=500.0, help="RTDE rate (CB3 125, e-Series up to 500)"),
         "safety_limit_kpa": Param(control.SAFETY_LIMIT_KPA, lo=0.0, hi=100.0, help="never above this F_N"),
@@ -267,18 +282,20 @@ class UR5(Node):
         "speed_m_s": Param(0.01, lo=0.001, hi=0.25, help="moveL speed"),
         "accel_m_s2": Param(0.1, lo=0.01, hi=1.2, help="moveL acceleration"),
         "force_stale_s": Param(0.5, lo=0.01, hi=10.0, help="older P_DC than this: hold still"),
-        "connect_timeout_s": Param(2.0, lo=0.1, hi=30.0, help="no controller after this: exit 2"),
+        "connect_timeout_s": Param(2.0, lo=0.1, hi=30.0, help="one connection attempt's timeout"),
+        "startup_timeout_s": Param(0.0, lo=0.0, hi=600.0, help="keep trying to reach the robot this long at start"),
         "state_hz": Param(10.0, lo=0.1, hi=125.0, help="/robot/state rate besides each period"),
     }
 
     def __init__(self, **kwargs):
         super().__init__("ur5", **kwargs)
+        rig_config.apply(self, "ur5", kwargs.get("params"))
         p = self.param
         loop = PressLoop(p("gain_mm_per_kpa"), p("max_step_mm"), p("safety_limit_kpa"),
                          p("max_press_mm"), p("max_lift_mm"))
         self.cfg = LinkConfig(p("robot_address"), p("rtde_hz"), p("speed_m_s"), p("accel_m_s2"),
                               loop, "xyz".index(p("press_axis")), p("press_sign"),
-                              p("connect_timeout_s"))
+                              p("connect_timeout_s"), p("startup_timeout_s"))
         self.mp = multiprocessing.get_context("spawn")
         self.snapshot = {"state": "reconnecting", "tcp_pose": None, "protective_stop": False,
                          "emergency_stop": False, "program_running": False}
@@ -400,10 +417,12 @@ class UR5(Node):
 
     def _close(self):
         if self.link is not None and self.link.is_alive():
-            self.jobs.put(("quit",))
-            self.link.join(timeout=5.0)
+            if self.connected_once and self.respawn_at is None:
+                self.jobs.put(("quit",))          # disconnects ur-rtde cleanly
+                self.link.join(timeout=2.0)
             if self.link.is_alive():
                 self.link.terminate()
+                self.link.join(timeout=2.0)
         self.log(f"refused {self.refused} command(s)")
 
 

@@ -1,0 +1,149 @@
+"""rig_check: are the real rig's devices there? One line per missing device, exit 2.
+
+    python -m incipient_slip.nodes.rig_check rig_config:=config/rig.yaml
+
+Checks every device section of the rig configuration at once, each within `timeout_s`:
+the NatNet server answers a connect with its server info, the Zaber stage answers a status
+poll on its serial port, the UR controller accepts connections on RTDE (30004) and the
+dashboard (29999, with its banner), the BioTac bridge's serial port (`biotac_port`, the launch
+files' arg of that name) opens. `launch ... rig:=hardware` starts it
+first and required: with a device missing the launch ends within seconds with its lines and
+exit code 2; with all present it prints one line and stays up (`stay: true`) beside the
+device nodes, so that its exit does not end the run.
+"""
+from __future__ import annotations
+
+import socket
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+from incipient_slip.devices import natnet, rig_config, zaber
+from incipient_slip.graph.params import Param, ParamError
+from incipient_slip.graph.runtime import Node, run_node
+
+EXIT_MISSING = 2
+
+
+def check_natnet(cfg: dict, timeout_s: float) -> str:
+    """"" when a NatNet server answers, else the line naming what to check."""
+    server = cfg.get("server_address", "127.0.0.1")
+    port = int(cfg.get("command_port", natnet.DEFAULT_COMMAND_PORT))
+    client = natnet.NatNetClient(server, local_address=cfg.get("local_address", "127.0.0.1"),
+                                 command_port=port, data_port=int(cfg.get("data_port", natnet.DEFAULT_DATA_PORT)),
+                                 multicast=bool(cfg.get("multicast", False)),
+                                 connect_timeout_s=min(0.5, timeout_s))
+    try:
+        client.open()
+    except OSError as exc:
+        return f"natnet: {exc}"
+    try:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and client.server_info is None:
+            client.poll()
+            time.sleep(0.01)
+    finally:
+        client.close()
+    if client.server_info is None:
+        return (f"natnet: no NatNet server at {server}:{port} (no server info in {timeout_s:g} s): "
+                f"is Motive running there with streaming on, Local Interface = that address?")
+    return ""
+
+
+def check_zaber(cfg: dict, timeout_s: float) -> str:
+    """"" when the Zaber stage answers on its port, else the line naming port and fix."""
+    import serial
+    port = cfg.get("port", "/dev/ttyUSB0")
+    try:
+        link = serial.Serial(port, int(cfg.get("baud", zaber.DEFAULT_BAUD)), timeout=0.02)
+    except (serial.SerialException, OSError) as exc:
+        return f"zaber: cannot open {port}: {exc}"
+    try:
+        client = zaber.ZaberClient(link, device=int(cfg.get("device", 1)), axis=int(cfg.get("axis", 1)),
+                                   microsteps_per_mm=1.0, timeout_s=timeout_s / 3, name=port)
+        client.status()
+    except zaber.ZaberError as exc:
+        return f"zaber: {exc}"
+    finally:
+        link.close()
+    return ""
+
+
+def check_ur5(cfg: dict, timeout_s: float) -> str:
+    """"" when the UR controller accepts RTDE and dashboard connections, else the line."""
+    host = cfg.get("robot_address", "192.168.1.5")
+    try:
+        socket.create_connection((host, 30004), timeout=timeout_s).close()
+        with socket.create_connection((host, 29999), timeout=timeout_s) as dash:
+            dash.settimeout(timeout_s)
+            banner = dash.recv(256).decode("utf-8", "replace")
+    except OSError as exc:
+        return f"ur5: no UR controller at {host} (RTDE 30004, dashboard 29999: {exc}): is the robot on and robot_address its IP?"
+    if "Universal Robots Dashboard" not in banner:
+        return f"ur5: {host}:29999 answered {banner.strip()[:60]!r}, not a UR dashboard server"
+    return ""
+
+
+def check_biotac(cfg: dict, timeout_s: float) -> str:
+    """"" when the BioTac bridge's serial port opens, else the line naming it."""
+    import serial
+    port = cfg.get("port", "/dev/ttyACM0")
+    try:
+        serial.Serial(port, timeout=0.02).close()
+    except (serial.SerialException, OSError) as exc:
+        return f"biotac: cannot open the bridge's port {port}: {exc}"
+    return ""
+
+
+CHECKS = {"natnet": check_natnet, "zaber": check_zaber, "ur5": check_ur5, "biotac": check_biotac}
+
+
+class RigCheck(Node):
+    """Checks that every device of config/rig.yaml answers; exit 2 with one line per missing one."""
+
+    INPUTS: dict = {}
+    OUTPUTS: dict = {}
+    PARAMS = {
+        "rig_config": Param("config/rig.yaml", help="the rig configuration file"),
+        "timeout_s": Param(3.0, lo=0.1, hi=60.0, help="each device must answer within this"),
+        "stay": Param(True, choices=(False, True), help="after success stay up until stopped"),
+        "biotac_port": Param("", help="the BioTac bridge's serial port to check (the launch arg; '' = not checked)"),
+    }
+
+    def __init__(self, **kwargs):
+        super().__init__("rig_check", **kwargs)
+        path, timeout_s = self.param("rig_config"), self.param("timeout_s")
+        sections = {name: rig_config.load_section(path, name) for name in CHECKS
+                    if _has_section(path, name)}
+        if self.param("biotac_port"):
+            sections["biotac"] = {"port": self.param("biotac_port")}
+        if not sections:
+            raise ParamError(f"rig_config {path}: no device sections ({', '.join(CHECKS)})")
+        with ThreadPoolExecutor(len(sections)) as pool:
+            results = dict(zip(sections, pool.map(lambda n: CHECKS[n](sections[n], timeout_s), sections)))
+        missing = [line for line in results.values() if line]
+        for line in missing:
+            self.log(line)
+        if missing:
+            self.shutdown(f"{len(missing)} of {len(results)} device(s) missing", EXIT_MISSING)
+        else:
+            self.log(f"all {len(results)} devices answer: {', '.join(results)}")
+            if not self.param("stay"):
+                self.shutdown("devices present")
+
+
+def _has_section(path: str, name: str) -> bool:
+    try:
+        rig_config.load_section(path, name)
+    except ParamError as exc:
+        if "no section" in str(exc):
+            return False
+        raise
+    return True
+
+
+def main(argv=None):
+    return run_node(RigCheck, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,95 @@
+"""rig:=hardware: config/rig.yaml is read by the device nodes, and with no device attached the
+launch ends within seconds with exit 2 and one line per missing device; rig_check passes when
+the emulated devices answer."""
+from __future__ import annotations
+
+import re
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from incipient_slip.devices import rig_config
+from incipient_slip.devices.natnet_emulator import NatNetEmulator
+from incipient_slip.devices.zaber_emulator import ZaberEmulator
+from incipient_slip.graph.params import ParamError
+
+pytestmark = pytest.mark.timeout(90)
+REPO = Path(__file__).resolve().parents[2]
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def missing_rig(tmp_path) -> Path:
+    path = tmp_path / "rig.yaml"
+    path.write_text(yaml.safe_dump({
+        "natnet": {"server_address": "127.0.0.1", "local_address": "127.0.0.1",
+                   "command_port": free_udp_port(), "data_port": free_udp_port()},
+        "zaber": {"port": str(tmp_path / "ttyNOPE")},
+        "ur5": {"robot_address": "127.0.0.1"},
+        "biotac": {"port": str(tmp_path / "ttyNOPE2")},
+    }))
+    return path
+
+
+def test_shipped_rig_config_fits_every_device_node():
+    from incipient_slip.nodes.linear_actuator import LinearActuator
+    from incipient_slip.nodes.mocap_bridge import MocapBridge
+    from incipient_slip.nodes.ur5 import UR5
+    from incipient_slip.graph.params import merge_params
+    for node, section in ((MocapBridge, "natnet"), (LinearActuator, "zaber"), (UR5, "ur5")):
+        merge_params(section, node.PARAMS, rig_config.load_section(REPO / "config" / "rig.yaml", section))
+
+
+def test_unknown_key_in_a_section_is_named(tmp_path, graph):
+    path = tmp_path / "rig.yaml"
+    path.write_text("zaber: {port: /dev/null, speed: 3}\n")
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.linear_actuator", f"rig_config:={path}"])
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 2 and "[zaber]" in err.decode() and "'speed'" in err.decode()
+
+
+def test_missing_section_is_a_param_error(tmp_path):
+    path = tmp_path / "rig.yaml"
+    path.write_text("natnet: {}\n")
+    with pytest.raises(ParamError, match="no section 'zaber'"):
+        rig_config.load_section(path, "zaber")
+
+
+@pytest.mark.parametrize("launch_file", ["stabilize.yaml", "collect.yaml"])
+def test_hardware_launch_without_devices_exits_2_with_one_line_per_device(tmp_path, graph, launch_file):
+    proc = graph.spawn([str(Path(sys.executable).parent / "launch"), launch_file, "rig:=hardware",
+                        f"rig_config:={missing_rig(tmp_path)}"], cwd=REPO)
+    _, err = proc.communicate(timeout=60)
+    text = err.decode()
+    assert proc.returncode == 2, text
+    lines = [l for l in text.splitlines() if l.startswith("[rig_check]") and "shutting down" not in l]
+    assert [re.match(r"\[rig_check\] (\w+):", l).group(1) for l in lines] == ["natnet", "zaber", "ur5", "biotac"]
+    assert "127.0.0.1" in lines[0] and "ttyNOPE" in lines[1] and "127.0.0.1" in lines[2]
+
+
+def test_rig_check_passes_when_the_emulated_devices_answer(tmp_path, graph):
+    data_port = free_udp_port()
+    with NatNetEmulator((4, 1), data_port=data_port) as mocap, ZaberEmulator() as stage:
+        fake = subprocess.Popen([sys.executable, "-m", "incipient_slip.devices.fake_ur", "--address", "127.0.0.1"],
+                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        try:
+            if not fake.stdout.readline().startswith("{"):
+                pytest.skip("ports 29999/30003/30004 on 127.0.0.1 are taken")
+            path = tmp_path / "rig.yaml"
+            path.write_text(yaml.safe_dump({
+                "natnet": {"server_address": "127.0.0.1", "command_port": mocap.command_port, "data_port": data_port},
+                "zaber": {"port": stage.port}, "ur5": {"robot_address": "127.0.0.1"}}))
+            proc = graph.spawn(["python", "-m", "incipient_slip.nodes.rig_check", f"rig_config:={path}", "stay:=false"])
+            _, err = proc.communicate(timeout=30)
+        finally:
+            fake.stdin.close()
+            fake.wait(timeout=10)
+    assert proc.returncode == 0 and "all 3 devices answer: natnet, zaber, ur5" in err.decode()
