@@ -19,6 +19,7 @@ COMMAND_MODULES = (
     "incipient_slip.sim.cli",            # dataset
     "incipient_slip.models.cli",         # train, evaluate
     "incipient_slip.experiments.cli",    # reproduce NAME|--list
+    "incipient_slip.devices.cli",        # robot recover, rig check
 )
 
 

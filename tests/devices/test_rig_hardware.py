@@ -93,3 +93,9 @@ def test_rig_check_passes_when_the_emulated_devices_answer(tmp_path, graph):
             fake.stdin.close()
             fake.wait(timeout=10)
     assert proc.returncode == 0 and "all 3 devices answer: natnet, zaber, ur5" in err.decode()
+
+
+def test_robot_recover_without_a_robot_node_is_exit_2(graph):
+    proc = graph.spawn([str(Path(sys.executable).parent / "slip"), "robot", "recover", "--timeout", "0.5"])
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 2 and "no ur5 node" in err.decode()

@@ -4,6 +4,7 @@ The fake controller runs as its own process (ur-rtde's constructors hold the GIL
 from __future__ import annotations
 
 import json
+from pathlib import Path
 import random
 import subprocess
 import sys
@@ -266,3 +267,14 @@ def test_dropped_connection_is_recovered_and_the_next_period_applies(robot):
     probe.grip.publish(GripCommand(normal_force_kpa=4.0, period=0))
     run(nodes, lambda: any(s.period == 0 for s in probe.states))
     assert ur("state")["commands"][-1] == 3
+
+
+def test_slip_robot_recover_brings_a_protective_stop_back_to_ready(robot, graph):
+    ur, node, probe, nodes = robot()
+    ur("protective_stop")
+    run(nodes, lambda: probe.states[-1].state == "stopped")
+    cli = graph.spawn([str(Path(sys.executable).parent / "slip"), "robot", "recover", "--note", "cleared"])
+    run(nodes, lambda: cli.poll() is not None, timeout_s=30)
+    out, err = cli.communicate()
+    assert cli.returncode == 0, err.decode()
+    assert "robot ready" in out.decode() and node.recoveries == [True]
