@@ -55,7 +55,7 @@ def _rig_check_class():
     return RigCheck
 
 
-def register(subparsers, reproduce) -> None:
+def register(subparsers) -> None:
     """Adds `slip robot recover` and `slip rig check` to the `slip` command."""
     robot = subparsers.add_parser("robot", help="the UR5 robot node of a running hardware graph")
     rsub = robot.add_subparsers(dest="tool", metavar="TOOL", required=True)
