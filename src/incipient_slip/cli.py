@@ -19,7 +19,7 @@ COMMAND_MODULES = (
     "incipient_slip.sim.cli",            # dataset
     "incipient_slip.models.cli",         # train, evaluate
     "incipient_slip.experiments.cli",    # reproduce NAME|--list
-    "incipient_slip.devices.cli",        # robot recover, rig check
+    "incipient_slip.nodes.device_tools", # robot recover, rig check
 )
 
 

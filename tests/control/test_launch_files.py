@@ -18,7 +18,7 @@ def test_stabilize_defaults_are_one_simulated_lockstep_injection_run():
     got = nodes(desc)
     assert set(got) == {"rig_sim", "estimator", "grip_controller", "supervisor"}
     assert got["rig_sim"].params["scene"] == "paper" and got["rig_sim"].params["lockstep"] is True
-    assert got["grip_controller"].params == {"method": "injection", "s_d": 0.3, "k": 2.0, "robot": "sim",
+    assert got["grip_controller"].params == {"method": "injection", "s_d": 0.3, "k": 2.0,
                                              "wait_subscribers": 2}
     # the run's own nodes end the launch if they die; the estimator's death is a handled fault
     assert got["supervisor"].required and got["rig_sim"].required and got["grip_controller"].required
@@ -44,13 +44,15 @@ def test_replay_rig_swaps_the_simulator_for_replay():
     assert "rig_sim" not in got and got["replay"].params["path"] == "x.mcap"
 
 
-def test_hardware_rig_fails_clearly_until_the_device_nodes_exist():
-    # biotac_reader and pzt_injector exist; the motion-side device nodes are still missing
-    with pytest.raises(LaunchError, match="mocap_bridge|linear_actuator"):
-        load(find_launch_file("stabilize.yaml"), {"rig": "hardware"})
-    proc = subprocess.run([sys.executable, "-m", "incipient_slip.graph.launch", "stabilize.yaml",
-                           "rig:=hardware"], capture_output=True, text=True, timeout=30)
-    assert proc.returncode != 0 and "no node module incipient_slip.nodes.mocap_bridge" in proc.stderr
+def test_hardware_rig_checks_the_devices_then_runs_every_device_node():
+    """(The launch itself, with no device attached: tests/devices/test_rig_hardware.py.)"""
+    got = nodes(load(find_launch_file("stabilize.yaml"), {"rig": "hardware", "rig_config": "lab.yaml",
+                                                          "biotac_port": "/dev/ttyX"}))
+    motion = ["rig_check", "mocap_bridge", "linear_actuator", "ur5"]
+    assert set(motion) | {"biotac_reader", "pzt_injector"} <= set(got) and "rig_sim" not in got
+    for name in motion:
+        assert got[name].required and got[name].params["rig_config"] == "lab.yaml"
+    assert got["rig_check"].params["biotac_port"] == got["biotac_reader"].params["port"] == "/dev/ttyX"
 
 
 def test_collect_records_the_collection_protocol():

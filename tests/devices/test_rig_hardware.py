@@ -15,7 +15,7 @@ import yaml
 from incipient_slip.devices import rig_config
 from incipient_slip.devices.natnet_emulator import NatNetEmulator
 from incipient_slip.devices.zaber_emulator import ZaberEmulator
-from incipient_slip.graph.params import ParamError
+from incipient_slip.errors import UsageError
 
 pytestmark = pytest.mark.timeout(90)
 REPO = Path(__file__).resolve().parents[2]
@@ -59,7 +59,7 @@ def test_unknown_key_in_a_section_is_named(tmp_path, graph):
 def test_missing_section_is_a_param_error(tmp_path):
     path = tmp_path / "rig.yaml"
     path.write_text("natnet: {}\n")
-    with pytest.raises(ParamError, match="no section 'zaber'"):
+    with pytest.raises(UsageError, match="no section 'zaber'"):
         rig_config.load_section(path, "zaber")
 
 

@@ -20,9 +20,10 @@ from __future__ import annotations
 
 import time
 
-from incipient_slip.devices import rig_config, zaber
+from incipient_slip.devices import zaber
 from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
+from incipient_slip.nodes.rig_check import apply_rig_config
 from incipient_slip.messages import ActuatorState, GripCommand
 
 EXIT_NO_DEVICE = 2
@@ -67,7 +68,7 @@ class LinearActuator(Node):
 
     def __init__(self, port=None, **kwargs):
         super().__init__("linear_actuator", **kwargs)
-        rig_config.apply(self, "zaber", kwargs.get("params"))
+        apply_rig_config(self, "zaber", kwargs.get("params"))
         p = self.param
         if not p("limit_min_mm") <= p("start_mm") <= p("limit_max_mm"):
             raise ParamError(f"start_mm:={p('start_mm')} is outside [limit_min_mm, limit_max_mm]"

@@ -22,9 +22,10 @@ import time
 
 import numpy as np
 
-from incipient_slip.devices import rig_config, natnet as nn
+from incipient_slip.devices import natnet as nn
 from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
+from incipient_slip.nodes.rig_check import apply_rig_config
 from incipient_slip.messages import ObjectPose
 
 EXIT_NO_DEVICE = 2
@@ -86,7 +87,7 @@ class MocapBridge(Node):
 
     def __init__(self, **kwargs):
         super().__init__("mocap_bridge", **kwargs)
-        rig_config.apply(self, "natnet", kwargs.get("params"))
+        apply_rig_config(self, "natnet", kwargs.get("params"))
         p = self.param
         self.body_id, self.rail_axis = p("body_id"), p("rail_axis")
         self.client = nn.NatNetClient(

@@ -18,10 +18,33 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 
 from incipient_slip.devices import natnet, rig_config, zaber
-from incipient_slip.graph.params import Param, ParamError
+from incipient_slip.errors import UsageError
+from incipient_slip.graph.params import Param, ParamError, merge_params
 from incipient_slip.graph.runtime import Node, run_node
 
 EXIT_MISSING = 2
+
+
+def apply_rig_config(node, section: str, explicit: dict | None) -> None:
+    """Fills `node.params` from `section` of the file in its `rig_config` parameter, keeping
+    every parameter given explicitly (`explicit`); ParamError names the file and the key."""
+    path = node.param("rig_config")
+    if not path:
+        return
+    try:
+        values = rig_config.load_section(path, section)
+    except UsageError as exc:
+        raise ParamError(str(exc)) from None
+    explicit = dict(explicit or {})
+    declared: dict = {}
+    for klass in reversed(type(node).__mro__):
+        declared.update(getattr(klass, "PARAMS", {}) or {})
+    try:
+        node.params = merge_params(node.name, declared,
+                                   {k: v for k, v in values.items() if k not in explicit},
+                                   {k: node.params[k] for k in explicit})
+    except ParamError as exc:
+        raise ParamError(f"rig_config {path} [{section}]: {exc}") from None
 
 
 def check_natnet(cfg: dict, timeout_s: float) -> str:
@@ -112,8 +135,11 @@ class RigCheck(Node):
     def __init__(self, **kwargs):
         super().__init__("rig_check", **kwargs)
         path, timeout_s = self.param("rig_config"), self.param("timeout_s")
-        sections = {name: rig_config.load_section(path, name) for name in CHECKS
-                    if _has_section(path, name)}
+        try:
+            sections = {name: rig_config.load_section(path, name) for name in CHECKS
+                        if _has_section(path, name)}
+        except UsageError as exc:
+            raise ParamError(str(exc)) from None
         if self.param("biotac_port"):
             sections["biotac"] = {"port": self.param("biotac_port")}
         if not sections:
@@ -134,7 +160,7 @@ class RigCheck(Node):
 def _has_section(path: str, name: str) -> bool:
     try:
         rig_config.load_section(path, name)
-    except ParamError as exc:
+    except UsageError as exc:
         if "no section" in str(exc):
             return False
         raise

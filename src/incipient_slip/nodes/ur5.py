@@ -30,9 +30,9 @@ import time
 from dataclasses import dataclass
 
 from incipient_slip import control
-from incipient_slip.devices import rig_config
 from incipient_slip.graph.params import Param
 from incipient_slip.graph.runtime import Node, run_node
+from incipient_slip.nodes.rig_check import apply_rig_config
 from incipient_slip.messages import BiotacSlow, GripCommand, RobotRecover, RobotState
 
 EXIT_NO_DEVICE = 2
@@ -289,7 +289,7 @@ class UR5(Node):
 
     def __init__(self, **kwargs):
         super().__init__("ur5", **kwargs)
-        rig_config.apply(self, "ur5", kwargs.get("params"))
+        apply_rig_config(self, "ur5", kwargs.get("params"))
         p = self.param
         loop = PressLoop(p("gain_mm_per_kpa"), p("max_step_mm"), p("safety_limit_kpa"),
                          p("max_press_mm"), p("max_lift_mm"))

@@ -1,8 +1,9 @@
-"""`slip robot recover` and `slip rig check`: the operator's side of the device nodes."""
+"""`slip robot recover` and `slip rig check`: the operator's tools for the device nodes."""
 from __future__ import annotations
 
 import time
 
+from incipient_slip.errors import UsageError
 from incipient_slip.graph import discovery
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.messages import RobotRecover, RobotState
@@ -22,12 +23,11 @@ class RecoverRequest(Node):
 
 def cmd_robot_recover(args) -> int:
     """Asks the running ur5 node to recover; 0 once it reports `ready`, 1 if it does not."""
-    from incipient_slip.cli import fail
     kwargs = {"graph_dir": discovery.graph_dir(args.graph)} if args.graph else {}
     with RecoverRequest(**kwargs) as node:
         if not node.pub.wait_for_subscribers(1, args.timeout):
-            return fail(f"no ur5 node reads {RobotRecover.TOPIC} in this graph "
-                        f"(is `launch ... rig:=hardware` running? --graph?)", "slip robot recover")
+            raise UsageError(f"no ur5 node reads {RobotRecover.TOPIC} in this graph "
+                             f"(is `launch ... rig:=hardware` running? --graph?)")
         sent_ns = time.time_ns()
         node.pub.publish(RobotRecover(note=args.note))
         print("recovery requested; waiting for the robot node", flush=True)
