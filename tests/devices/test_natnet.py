@@ -172,3 +172,21 @@ def test_frames_from_another_host_are_dropped_in_unicast():
     client.server_info = nn.ServerInfo("x", (1, 0, 0, 0), (4, 1, 0, 0))
     client._handle(nn.pack_packet(nn.NAT_FRAMEOFDATA, golden_frame((4, 1))), ("10.0.0.9", 1))
     assert client.stats["dropped:foreign_source"] == 1
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.integers(0, 400), min_size=1, max_size=80))
+def test_frames_leave_the_client_in_increasing_order_and_every_arrival_is_accounted(numbers):
+    """Any arrival order (gaps, duplicates, late frames): out in increasing frame order, and
+    frames out + duplicates + late ones = arrivals."""
+    client = nn.NatNetClient(command_port=1)
+    client.server_info = nn.ServerInfo("x", (1, 0, 0, 0), (4, 1, 0, 0))
+    body = nn.RigidBody(1, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+    out = []
+    for number in numbers:
+        frame = client._handle(nn.pack_frame(nn.Frame(number, (body,)), (4, 1)), ("127.0.0.1", 1))
+        if frame is not None:
+            out.append(frame.frame_number)
+    assert out == sorted(set(out))
+    s = client.stats
+    assert len(out) + s["dropped:duplicate"] + s["dropped:reordered"] == len(numbers)

@@ -188,3 +188,28 @@ def test_stall_is_an_fs_fault_cleared_by_warnings_clear(stage):
     assert client.position_mm() == pytest.approx(3.0, abs=1e-4)
     assert client.clear_warnings() == ["FS"]
     assert client.status().warning == "--"
+
+
+class ScriptedPort:
+    """A port whose device sends `noise` lines before each proper reply (no pty, no timing)."""
+
+    def __init__(self, noise: list[bytes]):
+        self.noise, self.lines = noise, []
+
+    def write(self, data: bytes) -> None:
+        body = data.decode().strip()[1:].split(":")[0].split()
+        device, axis, mid = int(body[0]), int(body[1]), int(body[2])
+        self.lines += self.noise + [f"@{device:02d} {axis} {mid:02d} OK IDLE -- 1234\r\n".encode()]
+
+    def readline(self) -> bytes:
+        return self.lines.pop(0) if self.lines else b""
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.binary(max_size=40).map(lambda b: b.replace(b"\n", b"") + b"\r\n"), max_size=6))
+def test_noise_before_a_reply_is_dropped_or_kept_aside_never_taken_for_the_reply(noise):
+    client = z.ZaberClient(ScriptedPort(noise), microsteps_per_mm=1.0, timeout_s=5.0)
+    reply = client.command("get pos")
+    assert (reply.message_id, reply.data) == (0, "1234")
+    s = client.stats
+    assert s["dropped"] + s["alerts"] + s["info"] == len(noise)

@@ -622,6 +622,8 @@ class NatNetClient:
             self._next_keepalive = now + self.keepalive_s
 
     def _send(self, packet: bytes) -> None:
+        if self._cmd is None:         # closed (or never opened): nothing to send on
+            return
         try:
             self._cmd.sendto(packet, self.server)
         except OSError as exc:
