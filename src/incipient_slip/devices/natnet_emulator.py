@@ -33,6 +33,9 @@ __all__ = ["NatNetEmulator", "main"]
 CLOCK_HZ = 10_000_000       # ticks per second of the suffix stamps (Motive reports its own)
 LATENCY_S = 0.004           # mid-exposure to transmit, as the suffix stamps report it
 FAULTS = ("gap", "duplicate", "reorder", "truncate")
+# the Motive release that speaks each NatNet version, reported as its app version (not verified)
+MOTIVE_VERSION = {(2, 10): (1, 10, 0, 0), (3, 1): (2, 1, 0, 0), (4, 0): (3, 0, 0, 0),
+                  (4, 1): (3, 1, 0, 0), (4, 2): (3, 2, 0, 0)}
 
 
 class NatNetEmulator:
@@ -128,7 +131,8 @@ class NatNetEmulator:
 
     def server_info(self) -> nn.ServerInfo:
         """What it answers a connect with."""
-        return nn.ServerInfo(self.app_name, (3, 1, 0, 0), self.version + (0, 0), CLOCK_HZ,
+        return nn.ServerInfo(self.app_name, MOTIVE_VERSION.get(self.version, (0, 0, 0, 0)),
+                             self.version + (0, 0), CLOCK_HZ,
                              self.data_port, self.multicast, self.multicast_address)
 
     # --- the server thread ---
