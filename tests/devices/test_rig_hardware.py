@@ -33,7 +33,7 @@ def missing_rig(tmp_path) -> Path:
         "natnet": {"server_address": "127.0.0.1", "local_address": "127.0.0.1",
                    "command_port": free_udp_port(), "data_port": free_udp_port()},
         "zaber": {"port": str(tmp_path / "ttyNOPE")},
-        "ur5": {"robot_address": "127.0.0.1"},
+        "ur5": {"robot_address": "127.1.0.1"},     # no fake controller of the tests uses it
         "biotac": {"port": str(tmp_path / "ttyNOPE2")},
     }))
     return path
@@ -72,7 +72,7 @@ def test_hardware_launch_without_devices_exits_2_with_one_line_per_device(tmp_pa
     assert proc.returncode == 2, text
     lines = [l for l in text.splitlines() if l.startswith("[rig_check]") and "shutting down" not in l]
     assert [re.match(r"\[rig_check\] (\w+):", l).group(1) for l in lines] == ["natnet", "zaber", "ur5", "biotac"]
-    assert "127.0.0.1" in lines[0] and "ttyNOPE" in lines[1] and "127.0.0.1" in lines[2]
+    assert "127.0.0.1" in lines[0] and "ttyNOPE" in lines[1] and "127.1.0.1" in lines[2]
 
 
 def test_rig_check_passes_when_the_emulated_devices_answer(tmp_path, graph):

@@ -183,8 +183,8 @@ def test_each_period_presses_towards_the_target_and_reports_it(robot):
     run(nodes, lambda: any(s.period == 0 for s in probe.states))
     assert ur("state")["tcp_pose"][2] == pytest.approx(z0 - 0.0002, abs=1e-6)   # 0.1 mm/kPa x 2 kPa
     state = next(s for s in probe.states if s.period == 0)
-    # the measured TCP, one RTDE package (8 ms) after the move ended: within 10 um of the target
-    assert state.state == "ready" and state.tcp_z_mm == pytest.approx((z0 - 0.0002) * 1000, abs=0.01)
+    # the measured TCP, read a few RTDE packages (8 ms each) after the move ended
+    assert state.state == "ready" and state.tcp_z_mm == pytest.approx((z0 - 0.0002) * 1000, abs=0.05)
 
 
 def test_a_command_whose_period_is_not_the_next_is_refused(robot):
