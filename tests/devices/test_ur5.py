@@ -278,3 +278,14 @@ def test_slip_robot_recover_brings_a_protective_stop_back_to_ready(robot, graph)
     out, err = cli.communicate()
     assert cli.returncode == 0, err.decode()
     assert "robot ready" in out.decode() and node.recoveries == [True]
+
+
+def test_commands_that_queue_behind_a_move_are_superseded_by_the_newest(robot):
+    ur, node, probe, nodes = robot()
+    probe.force(3.0)
+    run(nodes, lambda: math_isfinite(node.measured_kpa))
+    for k in range(3):
+        probe.grip.publish(GripCommand(normal_force_kpa=4.0, period=k))
+    run(nodes, lambda: any(s.period == 2 for s in probe.states))
+    moves = ur("state")["commands"].count(3)
+    assert moves + node.refused == 3 and node.refused >= 1      # no command applied late

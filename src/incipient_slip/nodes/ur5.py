@@ -177,6 +177,9 @@ class RobotLink:
             if job is None:
                 continue
             if job[0] == "press":
+                job = self._latest_press(job)
+                if job is None:
+                    break
                 self._press(*job[1:])
             elif job[0] == "recover":
                 self._recover()
@@ -185,6 +188,27 @@ class RobotLink:
                 iface.disconnect()
             except Exception:
                 pass
+
+    def _latest_press(self, job):
+        """The newest press job waiting (older ones are refused: a late move is a wrong move);
+        None when a quit was waiting too. A waiting recovery goes back on the queue."""
+        others = []
+        while True:
+            try:
+                newer = self.jobs.get_nowait()
+            except queue.Empty:
+                break
+            if newer[0] == "press":
+                self.events.put(("refused", f"period {job[1]}: superseded by period {newer[1]} "
+                                            f"before the robot could apply it"))
+                job = newer
+            elif newer[0] == "quit":
+                return None
+            else:
+                others.append(newer)
+        for other in others:
+            self.jobs.put(other)
+        return job
 
     def _refresh(self) -> bool:
         """Reads the robot's state (all of it from the receive interface); False on a drop."""
