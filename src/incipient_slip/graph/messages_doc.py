@@ -170,7 +170,7 @@ Arrays are never pickled.
 
 ### Schema versions
 
-Each type has its own version `v` (all are 1 today). Decoding refuses every other version: there
+Each type has its own version `v` (in each topic's heading below). Decoding refuses every other version: there
 is no negotiation and no optional field, so any change to what a receiver must accept or how it
 reads a value bumps the type's `v`: adding, removing or renaming a field; changing a field's
 msgpack type, integer width, dtype, shape or unit; changing bounds, choices or the NaN rule;

@@ -175,6 +175,7 @@ class GripCommand(Message):
 @dataclass(frozen=True, eq=False)
 class RobotState(Message):
     TOPIC: ClassVar[str] = "/robot/state"
+    SCHEMA_VERSION: ClassVar[int] = 2      # 2: emergency_stop, program_running, state, period
     DESCRIPTION: ClassVar[str] = "Robot end-effector state and the normal force it applies"
     normal_force_kpa: float = real(0.0, unit="kPa")
     tcp_z_mm: float = real(0.0, unit="mm")
