@@ -34,7 +34,6 @@ def missing_rig(tmp_path) -> Path:
                    "command_port": free_udp_port(), "data_port": free_udp_port()},
         "zaber": {"port": str(tmp_path / "ttyNOPE")},
         "ur5": {"robot_address": "127.1.0.1"},     # no fake controller of the tests uses it
-        "biotac": {"port": str(tmp_path / "ttyNOPE2")},
     }))
     return path
 
@@ -66,7 +65,8 @@ def test_missing_section_is_a_param_error(tmp_path):
 @pytest.mark.parametrize("launch_file", ["stabilize.yaml", "collect.yaml"])
 def test_hardware_launch_without_devices_exits_2_with_one_line_per_device(tmp_path, graph, launch_file):
     proc = graph.spawn([str(Path(sys.executable).parent / "launch"), launch_file, "rig:=hardware",
-                        f"rig_config:={missing_rig(tmp_path)}"], cwd=REPO)
+                        f"rig_config:={missing_rig(tmp_path)}", f"biotac_port:={tmp_path / 'ttyNOPE2'}"],
+                       cwd=REPO)
     _, err = proc.communicate(timeout=60)
     text = err.decode()
     assert proc.returncode == 2, text

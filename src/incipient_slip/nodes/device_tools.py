@@ -46,8 +46,10 @@ def cmd_robot_recover(args) -> int:
 
 def cmd_rig_check(args) -> int:
     """Runs rig_check once on `--config`; 2 with one line per missing device."""
-    return run_node(_rig_check_class(), [f"rig_config:={args.config}", f"timeout_s:={args.timeout}",
-                                         "stay:=false"])
+    argv = [f"rig_config:={args.config}", f"timeout_s:={args.timeout}", "stay:=false"]
+    if args.biotac_port:
+        argv.append(f"biotac_port:={args.biotac_port}")
+    return run_node(_rig_check_class(), argv)
 
 
 def _rig_check_class():
@@ -74,4 +76,6 @@ def register(subparsers) -> None:
     p.add_argument("--config", default="config/rig.yaml", help="rig configuration (default config/rig.yaml)")
     p.add_argument("--timeout", type=float, default=3.0, metavar="S",
                    help="each device must answer within this (default 3 s)")
+    p.add_argument("--biotac-port", default="", metavar="PORT",
+                   help="also check the BioTac bridge's serial port (e.g. /dev/ttyACM0)")
     p.set_defaults(func=cmd_rig_check)
