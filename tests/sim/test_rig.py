@@ -74,7 +74,7 @@ def test_actuator_steps_23_mm_in_450_periods():
     outs = [rig.step_period(5.9) for _ in range(450)]
     assert outs[0].actuator_mm == 0.0
     assert outs[-1].actuator_mm == pytest.approx(23.0 * 449 / 450)
-    assert rig.rail.actuator_mm == pytest.approx(23.0)
+    assert rig.state.actuator_mm == pytest.approx(23.0)
 
 
 def test_gross_slip_period_has_zero_stick_ratio_and_positive_travel():

@@ -1,16 +1,39 @@
 """The 19 BioTac electrodes: impedance follows local skin compression over each electrode.
 
-Local compression is the Hertz load spread over the fluid layer, p_e = P (w^2 / (w^2 + r_e^2))^(3/2)
-with w^2 = a^2 + h^2, centred on the contact point shifted by the skin's tangential displacement;
-impedance Z = Z0 (1 + kappa p_e); counts = 4095 / (1 + Z / 10 kOhm) (BioTac formula inverted).
+Local compression is the contact load spread over the fluid layer, p_e = P (w^2 / (w^2 + r_e^2))^(3/2)
+with w^2 = a^2 + h^2, centred on the contact point shifted by the *inner* skin's tangential
+displacement; impedance Z = Z0 (1 + kappa p_e); counts = 4095 / (1 + Z / 10 kOhm) (BioTac formula
+inverted). Nuisance physics that the paper blames for the electrodes' large errors near full stick:
+
+* inner-skin stiction on the core: the inner skin follows the pad's shear only once the shear load
+  exceeds a stiction threshold proportional to F_N (a play operator with half-width
+  core_stiction_ratio F_N / k_b, i.e. a fixed band of load ratio near full stick, with memory);
+* per-contact baseline offsets (where and how the object sits on the pad differs per series);
+* post-contact settling: the fluid redistributes, so a change of load reaches the electrodes with
+  a first-order lag (time constant settling_time_s, per 100 Hz sample);
+* baseline drift: an Ornstein-Uhlenbeck process (stationary std drift_counts, time constant
+  drift_time_s) whose initial value is drawn from its stationary distribution, so a series does
+  not start at zero drift.
 """
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
 
+def play(x_in: float, target: float, half_width: float) -> float:
+    """Return the new inner position of a play (backlash) operator: it moves only when the target is
+    more than half_width away, and then by just enough."""
+    if target - x_in > half_width:
+        return target - half_width
+    if x_in - target > half_width:
+        return target + half_width
+    return x_in
+
+
 def electrode_counts_mean(p: dict, normal_force_kpa: float, a_mm: float, shift_mm: float) -> np.ndarray:
-    """Return the noise-free counts (19,) for F_N (kPa), contact radius a and tangential shift."""
+    """Return the noise-free settled counts (19,) for F_N (kPa), contact radius a and inner-skin shift."""
     pos = np.asarray(p["positions_mm"], float)
     c = np.asarray(p["contact_center_mm"], float) + np.array([p["displacement_coupling"] * shift_mm, 0.0, 0.0])
     r2 = np.sum((pos - c) ** 2, axis=1)
@@ -21,33 +44,44 @@ def electrode_counts_mean(p: dict, normal_force_kpa: float, a_mm: float, shift_m
 
 
 class Electrodes:
-    """Electrode sampler with a slow per-electrode baseline drift (random walk)."""
+    """Electrode sampler of one series: inner-skin play, settling lag, contact offsets, OU drift, noise."""
 
-    def __init__(self, p: dict, n: int = 50, block: int = 32):
+    def __init__(self, p: dict, rng: np.random.Generator, n: int = 50, period_s: float = 0.5, block: int = 32):
         self.p = p
-        self.n, self.block = n, block
+        self.n, self.block, self.period_s = n, block, period_s
         self.buf_drift = np.empty((0, 19))
         self.i = 0
-        self.drift = np.zeros(19)
-        self.pos = np.asarray(p["positions_mm"], float)
-        self.center = np.asarray(p["contact_center_mm"], float)
-        self.h2 = p["fluid_depth_mm"] ** 2
+        self.inner_mm = 0.0
+        self.settled = None                       # counts the fluid has settled to (19,)
+        self.offset = rng.standard_normal(19) * p["contact_offset_counts"]
+        self.drift_decay = math.exp(-period_s / p["drift_time_s"])
+        self.drift = rng.standard_normal(19) * p["drift_counts"]            # stationary start
+        tau = p["settling_time_s"]
+        t = (np.arange(n) + 1) * (period_s / n)
+        self.settle_w = np.exp(-t / tau)[:, None] if tau > 0 else np.zeros((n, 1))
 
-    def __call__(self, rng: np.random.Generator, n: int, normal_force_kpa: float, a_mm: float, shift_mm: float) -> np.ndarray:
+    def inner_shift(self, pad_shear_mm: float, stiction_mm: float) -> float:
+        """Return the inner skin's displacement after the pad sheared to pad_shear_mm (play operator)."""
+        self.inner_mm = play(self.inner_mm, pad_shear_mm, max(stiction_mm, 0.0))
+        return self.inner_mm
+
+    def __call__(self, rng: np.random.Generator, n: int, normal_force_kpa: float, a_mm: float,
+                 shift_mm: float) -> np.ndarray:
+        """Return (n, 19) counts (unquantized) for this period's contact."""
         if n != self.n:
             raise ValueError(f"electrodes: built for {self.n} samples per period, asked for {n}")
+        p = self.p
         if self.i >= len(self.buf_drift):   # noise drawn in blocks of periods (fewer generator calls)
-            self.buf_drift = rng.standard_normal((self.block, 19)) * self.p["drift_counts_per_period"]
-            self.buf_noise = rng.standard_normal((self.block, n, 19)) * self.p["noise_counts"]
+            innov = math.sqrt(max(0.0, 1.0 - self.drift_decay**2)) * p["drift_counts"]
+            self.buf_drift = rng.standard_normal((self.block, 19)) * innov
+            self.buf_noise = rng.standard_normal((self.block, n, 19)) * p["noise_counts"]
             self.i = 0
-        self.drift += self.buf_drift[self.i]
+        self.drift = self.drift * self.drift_decay + self.buf_drift[self.i]
         noise = self.buf_noise[self.i]
         self.i += 1
-        p = self.p
-        d = self.pos - self.center
-        d[:, 0] -= p["displacement_coupling"] * shift_mm
-        r2 = np.einsum("ij,ij->i", d, d)
-        w2 = a_mm * a_mm + self.h2
-        z_kohm = p["baseline_kohm"] * (1.0 + p["kpa_sensitivity"] * normal_force_kpa * (w2 / (w2 + r2)) ** 1.5)
-        mean = 4095.0 / (1.0 + z_kohm / 10.0) + self.drift      # = electrode_counts_mean(...) + drift
-        return mean + noise
+        target = electrode_counts_mean(p, normal_force_kpa, a_mm, shift_mm)
+        if self.settled is None:                                     # settling from the untouched pad
+            self.settled = electrode_counts_mean(p, 0.0, 0.0, 0.0)
+        mean = target + (self.settled - target) * self.settle_w      # first-order settling per sample
+        self.settled = mean[-1].copy()
+        return mean + self.offset + self.drift + noise

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import adc, contact, partial_slip, stick_slip
+from . import adc, contact, stick_slip
 from .ambient_noise import AmbientNoise
 from .electrodes import Electrodes
 from .fingertip_modes import ModalPath
@@ -27,7 +27,7 @@ from .injection import PztSource
 from .mocap import mocap_samples
 from .pdc import pdc_counts
 from .scene import Scene, load_scene  # noqa: F401  (re-exported)
-from .stick_slip import RailState, SimulationError
+from .stick_slip import ContactState, SimulationError
 from .temperature import temperature_counts
 from .vibrotactile import bursts_pa
 
@@ -85,22 +85,23 @@ class Rig:
         children = np.random.SeedSequence(self.seed).spawn(len(STREAMS))
         self.rng = {name: np.random.default_rng(ss) for name, ss in zip(STREAMS, children)}
         mat = p["materials"][material]
-        jitter = 1.0 + p["stick_slip"]["mu_series_jitter"] * self.rng["friction"].standard_normal()
-        self.mu_s, self.mu_k = mat["mu_static"] * jitter, mat["mu_kinetic"] * jitter
+        ss = p["stick_slip"]
+        mu_mean = float(np.mean([m["mu_static"] for m in p["materials"].values()]))
+        mu_mat = mu_mean + ss["mu_spread_scale"] * (mat["mu_static"] - mu_mean)
+        self.mu_s = mu_mat * (1.0 + ss["mu_series_jitter"] * self.rng["friction"].standard_normal())
         self.roughness = mat["roughness"]
         c = p["contact"]
         self.radius_mm = contact.effective_radius_mm(c)
-        self.e_star, self.g_star = contact.effective_moduli_mpa(c, mat["object_modulus_mpa"])
-        # tangential compliance: G*_t at F_ref from the tangential skin modulus, stiffening with F_N
-        _, self.g_star_t_ref = contact.effective_moduli_mpa(
-            {**c, "skin_modulus_mpa": c["tangential_skin_modulus_mpa"]}, mat["object_modulus_mpa"])
+        self.e_star, _ = contact.effective_moduli_mpa(c, mat["object_modulus_mpa"])
+        nu = c["skin_poisson"]
+        g_obj = mat["object_modulus_mpa"] / (2 * (1 + nu))
+        self.g_star_int = 1.0 / ((2 - nu) / c["interfacial_shear_modulus_mpa"] + (2 - nu) / g_obj)
         # soft objects add a little damping to the modes (assumption: proportional to skin/object compliance ratio)
         self.material_damping = 0.01 * min(1.0, c["skin_modulus_mpa"] / mat["object_modulus_mpa"])
-        ss = p["stick_slip"]
-        self.k, self.mass, self.zeta = ss["spring_n_per_mm"], ss["object_mass_kg"], ss["rail_damping_ratio"]
-        self.omega = math.sqrt(1000.0 * self.k / self.mass)
+        self.k = ss["spring_n_per_mm"]
         self.step_mm = ss["actuator_travel_mm"] / ss["actuator_steps"]
-        self.rail = RailState()
+        self.state = ContactState()
+        self.friction_force_n: float | None = None     # the normal force the friction limit follows (lagged)
         self.k_period = 0
         self.prev_sar = 1.0
         has = scene.has
@@ -108,7 +109,8 @@ class Rig:
         self.band = PztSource(p["injection"], self.fs, self.n_pac) if has("injection") else None
         self.modes = ModalPath(p["fingertip_modes"], self.fs) if has("fingertip_modes") else None
         self.ambient = AmbientNoise(p["ambient_noise"], self.fs, self.n_pac) if has("ambient_noise") else None
-        self.electrodes = Electrodes(p["electrodes"], self.n_slow) if has("electrodes") else None
+        self.electrodes = (Electrodes(p["electrodes"], self.rng["electrodes"], self.n_slow, self.period_s)
+                           if has("electrodes") else None)
         self.n_slow_cols = has("electrodes") or has("pdc") or has("temperature")
         self.pzt_on = has("injection")
         self.pzt_db = scene.injection_db
@@ -132,35 +134,42 @@ class Rig:
         p = self.p
         c = p["contact"]
         fn_n = fn_kpa * c["newton_per_kpa"]
-        in_contact = fn_n >= p["contact"]["min_contact_force_n"]
-        a_mm = contact.contact_radius_mm(fn_n, self.radius_mm, self.e_star) if in_contact else 0.0
+        in_contact = fn_n >= c["min_contact_force_n"]
         out_fn = fn_n if in_contact else 0.0
-        jit = 1.0 + p["stick_slip"]["mu_period_jitter"] * self.rng["friction"].standard_normal()
-        mu_s, mu_k = self.mu_s * jit, self.mu_k * jit
-        mu_fn = mu_s * out_fn
-        g_t = contact.tangential_shear_modulus_mpa(self.g_star_t_ref, out_fn, c["tangential_ref_force_n"],
-                                                   c["tangential_stiffening_exponent"], c["min_contact_force_n"])
-        dmax = partial_slip.max_displacement_mm(mu_fn, g_t, a_mm)
-
-        sar, s_ratio, q, gross, slide_s, slide_t0 = 1.0, 1.0, 0.0, False, 0.0, 0.0
+        ss = p["stick_slip"]
+        lag = ss["friction_limit_lag_s"]
+        if self.friction_force_n is None or lag <= 0.0 or not in_contact:
+            self.friction_force_n = out_fn
+        else:
+            self.friction_force_n = out_fn + (self.friction_force_n - out_fn) * math.exp(-self.period_s / lag)
+        f_eff = self.friction_force_n
+        a_mm = (contact.contact_radius_mm(f_eff, self.radius_mm, self.e_star, c["contact_saturation_radius_mm"])
+                if in_contact else 0.0)
+        jit = 1.0 + ss["mu_period_jitter"] * self.rng["friction"].standard_normal()
+        mu_s = self.mu_s * jit
+        ps = p["pre_slip"]
+        k_bulk = contact.bulk_shear_stiffness_n_per_mm(ps["bulk_shear_n_per_mm"], out_fn, ps["bulk_ref_force_n"],
+                                                       ps["bulk_stiffening_exponent"], c["min_contact_force_n"])
+        dmax_int = contact.interfacial_max_mm(mu_s * f_eff, self.g_star_int, a_mm)
+        st = self.state
+        sar, s_ratio, q, gross, slide_s = 1.0, 1.0, 0.0, False, 0.0
         if self.scene.has("stick_slip"):
-            ss = p["stick_slip"]
-            stick_slip.step_rail(self.rail, normal_force_n=out_fn, mu_s=mu_s, mu_k=mu_k, dmax=dmax, k=self.k,
-                                 mass_kg=self.mass, zeta=self.zeta, period_s=self.period_s,
-                                 max_events=int(ss["max_slide_events"]), step=k_step)
-            slides = [sg for sg in self.rail.segments if sg.sliding]
-            gross = bool(slides)
-            if slides:
-                slide_t0 = slides[0].t0
-                slide_s = sum(sg.t1 - sg.t0 for sg in slides)
-            q = self.k * (self.rail.actuator_mm - self.rail.y_mm)
-            if self.rail.sliding or not in_contact:
-                s_ratio, sar = 0.0, 0.0
+            stick_slip.step_contact(st, friction_force_n=f_eff if in_contact else 0.0, bulk_force_n=out_fn,
+                                    mu_s=mu_s, dmax_int=dmax_int, k_spring=self.k, k_bulk=k_bulk,
+                                    rate_b=ss["rate_strengthening"], v_ref=ss["creep_reference_velocity_mm_s"],
+                                    v_stick=ss["restick_velocity_mm_s"], period_s=self.period_s, step=k_step)
+            slide_s = st.slide_t1_s - st.slide_t0_s
+            gross = slide_s > 0.0
+            q = st.tangential_force_n
+            sar = st.stick_area_ratio
+            if st.sliding or not in_contact:
+                s_ratio = 0.0
             else:
-                s_ratio = min(1.0, max(0.0, 1.0 - abs(q) / mu_fn))     # partial_slip.load_ratio_stick
-                sar = s_ratio ** (2.0 / 3.0)                            # partial_slip.stick_area_ratio
-        shift = self.rail.contact_disp_mm if in_contact else 0.0
+                s_ratio = min(1.0, max(0.0, 1.0 - abs(q) / st.friction_limit_n))   # partial_slip.load_ratio_stick
+        slide_t0 = st.slide_t0_s
         t0 = k_step * self.period_s
+        shear_strain = st.bulk_mm / p["fingertip_modes"]["pad_thickness_mm"] if "fingertip_modes" in p else 0.0
+        self.last_sar_seen: dict[str, float] = {}
 
         pac = None
         if self.has_pac:
@@ -176,9 +185,10 @@ class Rig:
             if self.modes is not None:
                 n_split = min(n, int(math.ceil((slide_t0 + slide_s) * self.fs))) if gross else 0
                 if n_split:
-                    self.modes(x[:n_split], a_mm, 0.0, self.material_damping)
+                    self.modes(x[:n_split], a_mm, 0.0, shear_strain, self.material_damping)
                 if n_split < n:
-                    self.modes(x[n_split:], a_mm, s_ratio, self.material_damping)
+                    self.modes(x[n_split:], a_mm, sar, shear_strain, self.material_damping)
+                self.last_sar_seen["modes"] = self.modes.last_state[1]
             if self.ambient is not None:
                 x += self.ambient.next(self.rng["ambient"])
             if not np.all(np.isfinite(x)):
@@ -189,7 +199,11 @@ class Rig:
         if self.n_slow_cols:
             slow = np.zeros((self.n_slow, 22))
             if self.electrodes is not None:
-                slow[:, :19] = self.electrodes(self.rng["electrodes"], self.n_slow, fn_kpa if in_contact else 0.0, a_mm, shift)
+                ep = p["electrodes"]
+                stiction_mm = ep["core_stiction_ratio"] * out_fn / k_bulk
+                shift = self.electrodes.inner_shift(st.bulk_mm if in_contact else 0.0, stiction_mm)
+                slow[:, :19] = self.electrodes(self.rng["electrodes"], self.n_slow, fn_kpa if in_contact else 0.0,
+                                               a_mm, shift)
             if self.scene.has("pdc"):
                 slow[:, 19] = pdc_counts(self.rng["pdc"], self.n_slow, fn_kpa, p["pdc"], p["adc"]["pdc_pa_per_count"])
             if self.scene.has("temperature"):
@@ -204,14 +218,14 @@ class Rig:
         mt = my = None
         if self.scene.has("mocap"):
             tt = np.arange(self.n_mocap) / p["timing"]["mocap_rate_hz"]
-            y_true = stick_slip.positions(self.rail, self.omega, self.zeta, tt)
+            y_true = stick_slip.positions(st, self.k, tt)
             mt = t0 + tt
             my = mocap_samples(self.rng["mocap"], y_true, p["mocap"]["noise_mm"])
 
         out = PeriodOutput(
             period_index=k_step, t_start_s=t0, pac_counts=pac, electrode_counts=elec, pdc_counts=pdc,
             tac_counts=tac, tdc_counts=tdc, mocap_t_s=mt, mocap_y_mm=my, normal_force_kpa=fn_kpa,
-            tangential_force_n=float(q), actuator_mm=self.rail.actuator_mm, object_y_mm=self.rail.y_mm,
+            tangential_force_n=float(q), actuator_mm=st.actuator_mm, object_y_mm=st.y_mm,
             stick_area_ratio=sar, load_ratio_stick=s_ratio, gross_slip=gross,
             pzt_on=self.pzt_on and self.band is not None, pzt_intensity_db=self.pzt_db)
         for name in ("tangential_force_n", "object_y_mm", "stick_area_ratio", "load_ratio_stick"):
@@ -220,5 +234,5 @@ class Rig:
         self.prev_sar = sar
         self.k_period += 1
         if actuator_step:
-            self.rail.actuator_mm += self.step_mm
+            st.actuator_mm += self.step_mm
         return out

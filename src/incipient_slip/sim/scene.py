@@ -136,9 +136,17 @@ def scene_from_dict(doc: dict, where: str = "scene", yaml_text: str = "") -> Sce
     for m in materials:
         if m not in values["materials"]:
             raise SceneError(f"{where}: unknown material {m!r} (known: {', '.join(all_materials)})")
-    zeta = values["stick_slip"]["rail_damping_ratio"]
-    if not 0.0 <= zeta < 1.0:
-        raise SceneError(f"{where}: stick_slip.rail_damping_ratio = {zeta} must be in [0, 1)")
+    for section, key, lo, lo_open in (("stick_slip", "rate_strengthening", 0.0, True),
+                                       ("stick_slip", "creep_reference_velocity_mm_s", 0.0, True),
+                                       ("stick_slip", "restick_velocity_mm_s", 0.0, True),
+                                       ("stick_slip", "friction_limit_lag_s", 0.0, False),
+                                       ("stick_slip", "spring_n_per_mm", 0.0, True),
+                                       ("pre_slip", "bulk_shear_n_per_mm", 0.0, True),
+                                       ("contact", "contact_saturation_radius_mm", 0.0, True),
+                                       ("electrodes", "drift_time_s", 0.0, True)):
+        v = values[section][key]
+        if not (isinstance(v, (int, float)) and v == v and abs(v) != float("inf")) or v < lo or (lo_open and v == lo):
+            raise SceneError(f"{where}: {section}.{key} = {v} must be {'>' if lo_open else '>='} {lo} and finite")
     return Scene(name=str(doc.get("name", Path(where).stem)), effects=effects, params=values,
                  materials=materials, injection_db=float(doc.get("injection_db", 0.0)),
                  source=where, yaml_text=yaml_text, description=str(doc.get("description", "")),
