@@ -1,16 +1,251 @@
-"""Validation of the simulated rig over its uncertainty set (placeholder until filled in below)."""
+"""The held-out closed loop over the simulated rig's uncertainty set (docs/calibration.md).
+
+At each point of the uncertainty set (beta, the friction spread, the friction-limit lag; one at a
+time around the fitted point) the mechanics are first re-fitted to the open-loop targets T1-T4
+(a point that cannot meet them is reported as inconsistent), then data sets are simulated with the
+paper's collection protocol, the six slip models are trained on them (quick SVR), and the paper's
+Table is run: 7 methods x N runs of the grip law (s_d 0.3, k 2 kPa) in-process on `sim.Rig`
+(the same period-by-period semantics as launch/stabilize.yaml: the estimate of the 1.0 s window
+ending at the period's end drives the next period's F_N; failure at y > 1.5 mm or F_N at 6.0 kPa),
+plus the oracle (the law on the simulator's true load ratio) as a diagnostic. Points run as tasks on
+dask.distributed (a LocalCluster by default, `--scheduler tcp://host:port` for a cluster); every task
+is seeded by its point, so results do not depend on the worker count. Nothing here feeds back into
+any parameter: this is the validation, and all of it is the simulated rig.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from incipient_slip import control
+from incipient_slip.sim.rig import Rig, series_seed
+from incipient_slip.sim.scene import load_scene
+
+from . import calibration as cal
+
 NAME = "validation"
-HELP = "the held-out closed loop over the simulated rig's uncertainty set"
+HELP = "the held-out stabilization Table over the simulated rig's uncertainty set (dask)"
 DOC = "validation.md"
+RESULTS = "validation_results.json"
+
+TABLE_METHODS = ("none", "vibrotactile", "e1", "e4", "e10", "e19", "injection")
+LABELS = {"none": "no action", "vibrotactile": "vibrotactile", "e1": "E1", "e4": "E4", "e10": "E10",
+          "e19": "E19", "injection": "injection", "oracle": "oracle (true ratio; diagnostic)"}
+SCENE_OF = {"injection": "paper", "vibrotactile": "no_injection", "e1": "electrodes_only", "e4": "electrodes_only",
+            "e10": "electrodes_only", "e19": "electrodes_only", "none": "mechanics", "oracle": "mechanics"}
+PAPER = {"none": (None, 2.48, 2.94, 450), "vibrotactile": (0.3, 1.32, 5.96, 397), "e1": (0.0, 0.89, 6.47, 139),
+         "e4": (0.1, 2.52, 3.59, 450), "e10": (1.0, 1.55, 5.23, 450), "e19": (0.8, 1.40, 6.24, 435),
+         "injection": (1.0, 1.38, 4.50, 450)}
+# the uncertainty set (docs/calibration.md): one parameter at a time at the ends of its range
+POINTS = {
+    "fitted": {},
+    "beta 0": {"pre_slip.bulk_stiffening_exponent": 0.0},
+    "beta 1": {"pre_slip.bulk_stiffening_exponent": 1.0},
+    "mu spread 0.5": {"stick_slip.mu_spread_scale": 0.5},
+    "mu spread 1.5": {"stick_slip.mu_spread_scale": 1.5},
+    "lag 0.5 s": {"stick_slip.friction_limit_lag_s": 0.5},
+    "lag 2 s": {"stick_slip.friction_limit_lag_s": 2.0},
+}
 
 
 def add_arguments(parser) -> None:
-    """No options yet."""
+    """Add the validation's options."""
+    parser.add_argument("--points", nargs="+", choices=list(POINTS), help="points of the uncertainty set (default all)")
+    parser.add_argument("--runs", type=int, help="closed-loop runs per method and point (quick 2, full 10)")
+    parser.add_argument("--series", type=int, help="training series per data set and point (quick 30, full 100)")
+    parser.add_argument("--steps", type=int, help=f"steps of a run (quick 60, full {control.MAX_STEPS})")
+    parser.add_argument("--workers", type=int, help="LocalCluster workers (default 2)")
+    parser.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="a running dask scheduler instead of a LocalCluster")
+
+
+def _scene(name: str, params: dict):
+    return dataclasses.replace(load_scene(name), params=params)
+
+
+def _window(prev, cur, stream: str) -> np.ndarray:
+    if stream == "pac":
+        return np.concatenate([prev.pac_counts, cur.pac_counts])
+    return np.concatenate([prev.electrode_counts, cur.electrode_counts])
+
+
+def closed_loop(method: str, params: dict, material: str, seed: int, model, steps: int) -> dict:
+    """Return one run's outcome: the grip law on `method`'s estimate (or on the true ratio for
+    'oracle', or no action for 'none') on the simulated rig with `params`."""
+    from incipient_slip.models.estimator_core import estimate_window
+
+    rig = Rig(_scene(SCENE_OF[method], params), material, seed)
+    cp = control.ControlParams()
+    fn = control.DEFAULT_INITIAL_FORCE_KPA
+    prev, out, failed, k = None, None, "", 0
+    for k in range(1, steps + 1):
+        out = rig.step_period(fn)
+        if method == "oracle":
+            s = out.load_ratio_stick
+        elif method != "none" and prev is not None:
+            s = estimate_window(model, _window(prev, out, model.spec.stream))
+        else:
+            s = math.nan
+        prev = out
+        if method != "none":
+            fn = control.next_force(fn, s, cp, problem="" if math.isfinite(s) else "filling").normal_force_kpa
+            if out.object_y_mm > control.FAILURE_TRAVEL_MM:
+                failed = "y"
+            elif fn >= control.SAFETY_LIMIT_KPA - 1e-9:
+                failed = "F_N"
+            if failed:
+                break
+    return {"success": (not failed) if method != "none" else None, "end": failed or "steps",
+            "y": float(out.object_y_mm), "fn": float(fn), "steps": k, "material": material}
+
+
+def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int, seed: int, work: str) -> dict:
+    """Return everything of one point: its stage-1 refit, model scores and the Table's runs."""
+    from incipient_slip.models.estimator_core import limit_blas_threads
+    from incipient_slip.models.pipeline import run_study
+    from incipient_slip.sim.dataset import write_dataset
+
+    limit_blas_threads(1)
+    t0 = time.perf_counter()
+    scene = cal.with_values(load_scene("paper"), {tuple(k.split(".")): v for k, v in overrides.items()})
+    fit = cal.fit_mechanics(scene, 25, 2, seed, 25, progress=False)
+    scene = cal.with_values(scene, {tuple(k.split(".")): v for k, v in fit["values"].items()})
+    summ = fit["summary"]
+    consistent = (abs(summ["T1"] - 1.5) <= 0.2 and abs(summ["T2"] - 0.4) <= 0.2 and summ["T3"] >= 0.99
+                  and abs(summ["T4"] - 2.48) <= 0.5)
+    d = Path(work) / name.replace(" ", "_")
+    dirs = {}
+    for sname in ("paper", "no_injection"):
+        out = d / sname
+        for stale in out.glob("series_*.npz"):
+            stale.unlink()
+        write_dataset(_scene(sname, scene.params), n_series, seed + 1, out, workers=1, progress=False)
+        dirs[sname] = out
+    study = run_study(dirs, quick=True, max_train=2000, grid_max=600, progress=False)
+    models = {m: r.model for m, r in study.results.items()}
+    mats = scene.materials
+    table = {}
+    for method in TABLE_METHODS + ("oracle",):
+        table[method] = [closed_loop(method, scene.params, mats[j % len(mats)], series_seed(seed + 2, j),
+                                     models.get(method), steps) for j in range(runs)]
+    return {"point": name, "overrides": overrides, "fit": {"values": fit["values"], "summary": summ},
+            "consistent": consistent, "rmse": {m: float(r.scores.rmse.mean()) for m, r in study.results.items()},
+            "top10": {m: float(r.scores.top10_rmse.mean()) for m, r in study.results.items()},
+            "runs": table, "seconds": time.perf_counter() - t0}
+
+
+def summarize(runs: list) -> dict:
+    """Return success rate, mean final y, F_N and steps, and the paper's score of a method's runs."""
+    succ = [r["success"] for r in runs if r["success"] is not None]
+    rate = float(np.mean(succ)) if succ else None
+    y = float(np.mean([r["y"] for r in runs]))
+    fn = float(np.mean([r["fn"] for r in runs]))
+    return {"success": rate, "y": y, "fn": fn, "steps": float(np.mean([r["steps"] for r in runs])),
+            "score": control.score(rate or 0.0, max(y, 1e-6), max(fn, 1e-6))}
 
 
 def run(settings) -> dict:
-    raise ValueError("validation is not implemented yet")
+    """Run every point of the uncertainty set on dask and return the Tables."""
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    opt = settings.option
+    names = opt("points", list(POINTS))
+    runs, n_series = opt("runs", settings.pick(2, 10)), opt("series", settings.pick(30, 100))
+    steps = opt("steps", settings.pick(60, control.MAX_STEPS))
+    for label, v in (("--runs", runs), ("--series", n_series), ("--steps", steps)):
+        if v < 1:
+            raise ValueError(f"{label} must be >= 1, got {v}")
+    scheduler = opt("scheduler")
+    if scheduler and not str(scheduler).startswith(("tcp://", "tls://", "inproc://")):
+        raise ValueError(f"--scheduler {scheduler!r}: expected tcp://host:port")
+    work = Path(settings.work) / "data"
+    cluster = None if scheduler else LocalCluster(n_workers=opt("workers", 2), threads_per_worker=1,
+                                                  processes=True, dashboard_address=None)
+    client = Client(scheduler or cluster)
+    try:
+        futures = [client.submit(point_task, n, POINTS[n], runs, n_series, steps, settings.seed, str(work),
+                                 key=f"validation-{n.replace(' ', '_')}-{settings.seed}", pure=False) for n in names]
+        done = {}
+        for i, fut in enumerate(as_completed(futures), 1):
+            res = fut.result()
+            done[res["point"]] = res
+            if settings.progress:
+                print(f"  [{i}/{len(futures)}] point {res['point']!r} done in {res['seconds']:.0f} s "
+                      f"({'consistent' if res['consistent'] else 'INCONSISTENT'} with T1-T4)", flush=True)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    points = {n: done[n] for n in names}
+    for p in points.values():
+        p["table"] = {m: summarize(r) for m, r in p["runs"].items()}
+    return {"budget": settings.budget, "runs": runs, "series": n_series, "steps": steps, "points": points,
+            "figure": _figure(points, settings.figures)}
+
+
+def _figure(points: dict, fig_dir: Path) -> str:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    methods = [m for m in TABLE_METHODS if m != "none"] + ["oracle"]
+    grid = np.array([[points[p]["table"][m]["success"] for m in methods] for p in points], float)
+    fig, ax = plt.subplots(figsize=(8, 0.5 * len(points) + 1.8))
+    im = ax.imshow(grid, vmin=0, vmax=1, cmap="viridis", aspect="auto")
+    ax.set_xticks(range(len(methods)), [LABELS[m] for m in methods], rotation=30, ha="right", fontsize=8)
+    ax.set_yticks(range(len(points)), [p + ("" if points[p]["consistent"] else " (inconsistent)") for p in points],
+                  fontsize=8)
+    for i in range(grid.shape[0]):
+        for j in range(grid.shape[1]):
+            ax.text(j, i, f"{grid[i, j]:.1f}", ha="center", va="center", color="w", fontsize=7)
+    fig.colorbar(im, ax=ax, label="success rate")
+    ax.set_title("SIMULATED RIG: where each method holds the object (success rate) over the uncertainty set",
+                 fontsize=9)
+    fig.tight_layout()
+    name = "validation_success.png"
+    fig.savefig(fig_dir / name, dpi=110)
+    plt.close(fig)
+    return name
+
+
+def _cell(v, fmt="{:.2f}") -> str:
+    return "–" if v is None else fmt.format(v)
 
 
 def render(results: dict) -> dict:
-    return {}
+    """Return the Table at the fitted point beside the paper's, and success over the uncertainty set."""
+    pts = results["points"]
+    head = (f"Simulated rig, not measurements: {results['runs']} runs per method, {results['steps']} steps, models "
+            f"trained on {results['series']} simulated series per data set (quick SVR), budget `{results['budget']}`.")
+    blocks = {}
+    if "fitted" in pts:
+        t = pts["fitted"]["table"]
+        lines = [head, "", "| | " + " | ".join(LABELS[m] for m in TABLE_METHODS) + " |",
+                 "|---|" + "---|" * len(TABLE_METHODS)]
+        for key, label, fmt, idx in (("success", "success rate", "{:.1f}", 0), ("y", "y [mm]", "{:.2f}", 1),
+                                     ("fn", "F_N [kPa]", "{:.2f}", 2), ("steps", "steps", "{:.0f}", 3)):
+            lines.append(f"| {label}, simulated | " + " | ".join(_cell(t[m][key], fmt) for m in TABLE_METHODS) + " |")
+            lines.append(f"| {label}, paper | " + " | ".join(_cell(PAPER[m][idx], fmt) for m in TABLE_METHODS) + " |")
+        lines.append("| score, simulated | " + " | ".join(f"{t[m]['score']:.2f}" for m in TABLE_METHODS) + " |")
+        o = t["oracle"]
+        lines += ["", f"Oracle (diagnostic, the law on the simulator's true load ratio): success {o['success']:.1f}, "
+                  f"y {o['y']:.2f} mm, F_N {o['fn']:.2f} kPa."]
+        blocks["validation-fitted"] = "\n".join(lines)
+    methods = [m for m in TABLE_METHODS if m != "none"] + ["oracle"]
+    lines = [head, "", "| point | consistent with T1-T4 | k_b [N/mm] | k_s [N/mm] | "
+             + " | ".join(LABELS[m] for m in methods) + " |", "|---|---|---|---|" + "---|" * len(methods)]
+    for name, p in pts.items():
+        v = p["fit"]["values"]
+        lines.append(f"| {name} | {'yes' if p['consistent'] else 'no'} | {v['pre_slip.bulk_shear_n_per_mm']:.3f} | "
+                     f"{v['stick_slip.spring_n_per_mm']:.4f} | " + " | ".join(
+                         f"{p['table'][m]['success']:.1f} ({p['table'][m]['y']:.2f} mm, {p['table'][m]['fn']:.1f} kPa)"
+                         for m in methods) + " |")
+    lines += ["", "Cells: success rate (mean final y, mean final F_N).", "",
+              f"![simulated rig: success over the uncertainty set](figures/{results['figure']})",
+              f"*Simulated rig, not a measurement: `{results['figure']}`.*"]
+    blocks["validation-set"] = "\n".join(lines)
+    return blocks
