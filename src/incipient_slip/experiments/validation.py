@@ -58,6 +58,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--runs", type=int, help="closed-loop runs per method and point (quick 2, full 10)")
     parser.add_argument("--series", type=int, help="training series per data set and point (quick 30, full 100)")
     parser.add_argument("--steps", type=int, help=f"steps of a run (quick 60, full {control.MAX_STEPS})")
+    parser.add_argument("--sweep-runs", dest="sweep_runs", type=int,
+                        help=f"also sweep s_d over {SWEEP_SD} at each point with this many runs per method (default 0: no sweep)")
     parser.add_argument("--workers", type=int, help="LocalCluster workers (default 2)")
     parser.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="a running dask scheduler instead of a LocalCluster")
 
@@ -72,13 +74,14 @@ def _window(prev, cur, stream: str) -> np.ndarray:
     return np.concatenate([prev.electrode_counts, cur.electrode_counts])
 
 
-def closed_loop(method: str, params: dict, material: str, seed: int, model, steps: int) -> dict:
+def closed_loop(method: str, params: dict, material: str, seed: int, model, steps: int,
+                s_d: float = control.DEFAULT_TARGET_STICK_RATIO) -> dict:
     """Return one run's outcome: the grip law on `method`'s estimate (or on the true ratio for
     'oracle', or no action for 'none') on the simulated rig with `params`."""
     from incipient_slip.models.estimator_core import estimate_window
 
     rig = Rig(_scene(SCENE_OF[method], params), material, seed)
-    cp = control.ControlParams()
+    cp = control.ControlParams(target_stick_ratio=s_d)
     fn = control.DEFAULT_INITIAL_FORCE_KPA
     prev, out, failed, k = None, None, "", 0
     for k in range(1, steps + 1):
@@ -102,7 +105,12 @@ def closed_loop(method: str, params: dict, material: str, seed: int, model, step
             "y": float(out.object_y_mm), "fn": float(fn), "steps": k, "material": material}
 
 
-def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int, seed: int, work: str) -> dict:
+SWEEP_SD = (0.3, 0.5, 0.7, 0.8)
+SWEEP_METHODS = ("injection", "e19", "e10", "oracle")
+
+
+def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int, seed: int, work: str,
+               sweep_runs: int = 0) -> dict:
     """Return everything of one point: its stage-1 refit, model scores and the Table's runs."""
     from incipient_slip.models.estimator_core import limit_blas_threads
     from incipient_slip.models.pipeline import run_study
@@ -131,7 +139,12 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
     for method in TABLE_METHODS + ("oracle",):
         table[method] = [closed_loop(method, scene.params, mats[j % len(mats)], series_seed(seed + 2, j),
                                      models.get(method), steps) for j in range(runs)]
-    return {"point": name, "overrides": overrides, "fit": {"values": fit["values"], "summary": summ},
+    sweep = {}
+    for method in SWEEP_METHODS if sweep_runs else ():
+        sweep[method] = {str(sd): [closed_loop(method, scene.params, mats[j % len(mats)], series_seed(seed + 3, j),
+                                               models.get(method), steps, sd) for j in range(sweep_runs)]
+                         for sd in SWEEP_SD}
+    return {"point": name, "overrides": overrides, "fit": {"values": fit["values"], "summary": summ}, "sweep": sweep,
             "consistent": consistent, "rmse": {m: float(r.scores.rmse.mean()) for m, r in study.results.items()},
             "top10": {m: float(r.scores.top10_rmse.mean()) for m, r in study.results.items()},
             "runs": table, "seconds": time.perf_counter() - t0}
@@ -167,6 +180,7 @@ def run(settings) -> dict:
     client = Client(scheduler or cluster)
     try:
         futures = [client.submit(point_task, n, POINTS[n], runs, n_series, steps, settings.seed, str(work),
+                                 opt("sweep_runs", 0),
                                  key=f"validation-{n.replace(' ', '_')}-{settings.seed}", pure=False) for n in names]
         done = {}
         for i, fut in enumerate(as_completed(futures), 1):
@@ -182,6 +196,7 @@ def run(settings) -> dict:
     points = {n: done[n] for n in names}
     for p in points.values():
         p["table"] = {m: summarize(r) for m, r in p["runs"].items()}
+        p["sweep_table"] = {m: {sd: summarize(r) for sd, r in by_sd.items()} for m, by_sd in p.get("sweep", {}).items()}
     return {"budget": settings.budget, "runs": runs, "series": n_series, "steps": steps, "points": points,
             "figure": _figure(points, settings.figures)}
 
@@ -248,4 +263,15 @@ def render(results: dict) -> dict:
               f"![simulated rig: success over the uncertainty set](figures/{results['figure']})",
               f"*Simulated rig, not a measurement: `{results['figure']}`.*"]
     blocks["validation-set"] = "\n".join(lines)
+    sw = {n: p["sweep_table"] for n, p in pts.items() if p.get("sweep_table")}
+    if sw:
+        lines = [head, "", "| point | method | " + " | ".join(f"s_d {sd}" for sd in SWEEP_SD) + " |",
+                 "|---|---|" + "---|" * len(SWEEP_SD)]
+        for name, t in sw.items():
+            for m, by_sd in t.items():
+                lines.append(f"| {name} | {LABELS[m]} | " + " | ".join(
+                    f"{by_sd[str(sd)]['success']:.1f} ({by_sd[str(sd)]['y']:.2f} mm, {by_sd[str(sd)]['fn']:.1f} kPa)"
+                    for sd in SWEEP_SD) + " |")
+        lines += ["", "Cells: success rate (mean final y, mean final F_N)."]
+        blocks["validation-sweep"] = "\n".join(lines)
     return blocks

@@ -1,0 +1,47 @@
+"""The validation experiment's closed loop and report (the full sweep is an experiment, not a test)."""
+import pytest
+
+from incipient_slip import control
+from incipient_slip.experiments import validation as val
+from incipient_slip.sim.scene import load_scene
+
+
+def test_no_action_keeps_the_initial_grip_and_runs_every_step():
+    p = load_scene("mechanics").params
+    r = val.closed_loop("none", p, "pla", 3, None, 40)
+    assert r["steps"] == 40 and r["success"] is None and r["fn"] == control.DEFAULT_INITIAL_FORCE_KPA
+
+
+def test_oracle_loop_is_deterministic_and_ends_by_the_papers_rules():
+    p = load_scene("mechanics").params
+    a = val.closed_loop("oracle", p, "nylon", 5, None, 120)
+    b = val.closed_loop("oracle", p, "nylon", 5, None, 120)
+    assert a == b
+    if a["success"]:
+        assert a["steps"] == 120 and a["y"] <= control.FAILURE_TRAVEL_MM and a["fn"] < control.SAFETY_LIMIT_KPA
+    else:
+        assert a["end"] in ("y", "F_N") and (a["y"] > control.FAILURE_TRAVEL_MM
+                                            or a["fn"] >= control.SAFETY_LIMIT_KPA - 1e-9)
+
+
+def test_summary_and_render_label_the_simulated_rig():
+    runs = [{"success": True, "end": "steps", "y": 1.0, "fn": 4.0, "steps": 450, "material": "pla"},
+            {"success": False, "end": "y", "y": 2.0, "fn": 3.0, "steps": 100, "material": "abs"}]
+    s = val.summarize(runs)
+    assert s["success"] == 0.5 and s["y"] == pytest.approx(1.5) and s["steps"] == pytest.approx(275)
+    table = {m: s for m in val.TABLE_METHODS + ("oracle",)}
+    res = {"budget": "quick", "runs": 2, "series": 10, "steps": 450, "figure": "validation_success.png",
+           "points": {"fitted": {"table": table, "consistent": True, "sweep_table": {},
+                                 "fit": {"values": {"pre_slip.bulk_shear_n_per_mm": 0.2,
+                                                    "stick_slip.spring_n_per_mm": 0.024}}}}}
+    blocks = val.render(res)
+    assert set(blocks) == {"validation-fitted", "validation-set"}
+    assert all("Simulated rig" in b for b in blocks.values())
+    assert "| success rate, paper | – | 0.3 | 0.0 | 0.1 | 1.0 | 0.8 | 1.0 |" in blocks["validation-fitted"]
+
+
+@pytest.mark.parametrize("opts, needle", [({"runs": 0}, "--runs"), ({"scheduler": "localhost:8786"}, "--scheduler")])
+def test_bad_options_are_named_errors(opts, needle, tmp_path):
+    from incipient_slip.experiments._standalone import Settings
+    with pytest.raises(ValueError, match=needle):
+        val.run(Settings(budget="quick", work=tmp_path, progress=False, options=opts))
