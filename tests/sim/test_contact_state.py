@@ -63,7 +63,7 @@ def test_a_slide_never_overshoots_the_friction_limit(q_excess, f, b, k_s, k_b):
     st_ = ContactState()
     # place the actuator so that the stuck load would be mu F + q_excess
     st_.actuator_mm = (mu * f + q_excess) * (1 / k_s + 1 / k_b) + 0.1
-    step_contact(st_, friction_force_n=f, bulk_force_n=f, mu_s=mu, dmax_int=0.1, k_spring=k_s, k_bulk=k_b,
+    step_contact(st_, friction_force_n=f, mu_s=mu, dmax_int=0.1, k_spring=k_s, k_bulk=k_b,
                  rate_b=b, v_ref=1.0, v_stick=0.005, period_s=0.5, step=0)
     q = st_.tangential_force_n
     assert math.isfinite(q) and math.isfinite(st_.y_mm)

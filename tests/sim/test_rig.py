@@ -79,11 +79,15 @@ def test_actuator_steps_23_mm_in_450_periods():
 
 def test_gross_slip_period_has_zero_stick_ratio_and_positive_travel():
     rig = Rig(load_scene("mechanics"), "nylon", 0)
-    outs = [rig.step_period(1.1) for _ in range(200)]
+    outs = [rig.step_period(1.1) for _ in range(450)]
     first = next(o for o in outs if o.gross_slip)
     before = outs[first.period_index - 1]
-    assert first.object_y_mm > before.object_y_mm + 0.02
-    assert before.load_ratio_stick < 0.1
+    assert before.load_ratio_stick < 0.1 and first.load_ratio_stick == 0.0
+    # creep (simulator v2): the slide starts gently and settles at the actuator's pace, which the
+    # paper's 0.02 mm per period rule sees within a few periods
+    later = outs[first.period_index + 5]
+    assert later.object_y_mm - outs[first.period_index + 4].object_y_mm > 0.02
+    assert first.object_y_mm > before.object_y_mm
 
 
 def test_fewer_effects_means_fewer_outputs_not_different_mechanics():

@@ -154,7 +154,7 @@ class Rig:
         st = self.state
         sar, s_ratio, q, gross, slide_s = 1.0, 1.0, 0.0, False, 0.0
         if self.scene.has("stick_slip"):
-            stick_slip.step_contact(st, friction_force_n=f_eff if in_contact else 0.0, bulk_force_n=out_fn,
+            stick_slip.step_contact(st, friction_force_n=f_eff if in_contact else 0.0,
                                     mu_s=mu_s, dmax_int=dmax_int, k_spring=self.k, k_bulk=k_bulk,
                                     rate_b=ss["rate_strengthening"], v_ref=ss["creep_reference_velocity_mm_s"],
                                     v_stick=ss["restick_velocity_mm_s"], period_s=self.period_s, step=k_step)

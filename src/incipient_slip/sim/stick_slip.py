@@ -109,13 +109,13 @@ def _creep_z(z0: float, lam: float, tau) -> np.ndarray:
     return np.clip(z, 0.0, z0)
 
 
-def step_contact(st: ContactState, *, friction_force_n: float, bulk_force_n: float, mu_s: float,
+def step_contact(st: ContactState, *, friction_force_n: float, mu_s: float,
                  dmax_int: float, k_spring: float, k_bulk: float, rate_b: float, v_ref: float,
                  v_stick: float, period_s: float, step: int) -> ContactState:
     """Advance the contact by one period at fixed actuator position; return the updated state.
 
     friction_force_n is the normal force the friction limit and interfacial compliance follow
-    (F_N, or F_N lagged); bulk_force_n only sets k_bulk (already given)."""
+    (F_N, or F_N lagged); k_bulk is the pad's shear stiffness at the period's actual F_N."""
     u = st.actuator_mm
     mu_fn = mu_s * friction_force_n
     st.friction_limit_n = mu_fn
