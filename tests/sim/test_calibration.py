@@ -50,7 +50,7 @@ def test_every_parameter_has_a_unit_and_a_source_fit_or_stated_assumption():
         elif isinstance(node, dict):
             for v in node.values():
                 yield from leaves(v)
-    words = ("assumption", "fitted", "paper", "prior", "BioTac", "datasheet", "RIG.md", "OptiTrack", "12-bit", "numerical")
+    words = ("assumption", "fitted", "paper", "prior", "BioTac", "datasheet", "manual", "OptiTrack", "12-bit", "numerical")
     for leaf in leaves(doc):
         assert any(w in leaf["source"] for w in words), leaf
 
