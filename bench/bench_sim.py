@@ -4,16 +4,25 @@
 2. Time to write the paper-scale data set: 5 materials x 100 series x 450 steps, with injection
    (scene paper) and without (scene no_injection), on all cores, to a temporary directory.
    `--fraction F` writes only that fraction of the series and extrapolates linearly (said so).
-Last line: `paper-scale dataset seconds = X`.
+3. `--against REV`: per-period CPU cost of this checkout's simulator against git revision REV's,
+   measured side by side (interleaved fresh processes, one collection series each), as ratios
+   with median and spread; REV's src/ and scenes/ are exported with `git archive`. Use this on a
+   loaded machine instead of the full data set: the paper-scale time scales with the ratio.
+Last line: `paper-scale dataset seconds = X` (or, with --against, the ratio of the paper scene).
 """
 from __future__ import annotations
 
 import argparse
+import ast
 import os
 import shutil
 import statistics
+import subprocess
+import sys
+import tarfile
 import tempfile
 import time
+from pathlib import Path
 
 from incipient_slip.sim import Rig, load_scene
 from incipient_slip.sim.dataset import write_dataset
@@ -37,12 +46,67 @@ def per_period_ms(scene_name: str, repeats: int, steps: int) -> tuple[list[float
     return wall, cpu
 
 
+_ONE_SERIES = """
+import sys, time
+from incipient_slip.sim import Rig, load_scene
+from incipient_slip.sim.protocols import run_collection
+out = {}
+for name in sys.argv[2:]:
+    sc = load_scene(name)
+    rig = Rig(sc, sc.materials[int(sys.argv[1]) % len(sc.materials)], 1000 + int(sys.argv[1]))
+    c = time.process_time()
+    for _ in run_collection(rig, 450):
+        pass
+    out[name] = (time.process_time() - c) / 450 * 1e3
+print(repr(out))
+"""
+
+
+def against(rev: str, repeats: int) -> int:
+    """Print per-period CPU cost ratios (this checkout / rev) per scene; return an exit code."""
+    root = Path(__file__).resolve().parents[1]
+    tmp = Path(tempfile.mkdtemp(prefix="bench_sim_rev_"))
+    try:
+        tar = subprocess.run(["git", "-C", str(root), "archive", rev, "src", "scenes", "pyproject.toml"],
+                             capture_output=True, check=False)
+        if tar.returncode:
+            print(f"bench_sim: error: git archive {rev}: {tar.stderr.decode().strip()}", file=sys.stderr)
+            return 2
+        (tmp / "rev.tar").write_bytes(tar.stdout)
+        with tarfile.open(tmp / "rev.tar") as t:
+            t.extractall(tmp / "rev", filter="data")
+        runs = {"this": [], rev: []}
+        for r in range(repeats):
+            for tag, env, cwd in (("this", {}, root), (rev, {"PYTHONPATH": str(tmp / "rev" / "src")}, tmp / "rev")):
+                o = subprocess.run([sys.executable, "-c", _ONE_SERIES, str(r), *SCENES], capture_output=True,
+                                   text=True, env=dict(os.environ, **env), cwd=cwd, check=False)
+                if o.returncode:
+                    print(f"bench_sim: error: {tag}: {o.stderr.strip().splitlines()[-1:]}", file=sys.stderr)
+                    return 1
+                runs[tag].append(ast.literal_eval(o.stdout.strip().splitlines()[-1]))
+        print(f"per-period CPU cost, this checkout vs {rev} ({repeats} interleaved series each; load average "
+              f"{os.getloadavg()[0]:.1f}):")
+        for name in SCENES:
+            ratios = [a[name] / b[name] for a, b in zip(runs["this"], runs[rev])]
+            print(f"  {name:16s} this {statistics.median(a[name] for a in runs['this']):6.3f} ms, {rev} "
+                  f"{statistics.median(b[name] for b in runs[rev]):6.3f} ms; ratio median {statistics.median(ratios):.2f} "
+                  f"(min {min(ratios):.2f}, max {max(ratios):.2f})")
+        paper = statistics.median(a["paper"] / b["paper"] for a, b in zip(runs["this"], runs[rev]))
+        print(f"paper scene cost ratio = {paper:.2f}")
+        return 0
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--fraction", type=float, default=1.0, help="fraction of the 2 x 500 series to write (default 1)")
     ap.add_argument("--repeats", type=int, default=7, help="repeats per scene for the per-effect cost")
     ap.add_argument("--workers", type=int, default=os.cpu_count())
+    ap.add_argument("--against", metavar="REV", help="only compare per-period cost with git revision REV side by side")
     args = ap.parse_args(argv)
+    if args.against:
+        return against(args.against, args.repeats)
     print(f"machine: {os.cpu_count()} cores; workers = {args.workers}; load average at start {os.getloadavg()[0]:.1f}")
     print("per-period cost (one 500 ms period, single process):")
     med = {}
