@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	@$(BIN)/launch stabilize.yaml; code=$$?; \
 	if [ $$code -eq 1 ]; then \
-	  echo "demo: the graph ran; the run itself ended on the paper's failure condition (see docs/stabilization.md)"; \
+	  echo "demo: the graph ran; the run ended on the paper's failure condition, as the simulated rig predicts at its fitted point (docs/validation.md)"; \
 	  exit 0; fi; exit $$code
 
 test: $(STAMP)
