@@ -18,15 +18,15 @@ import math
 import re
 from pathlib import Path
 
-import numpy as np
-from scipy import optimize, signal
+from typing import TYPE_CHECKING
 
-from incipient_slip.models.labels import gross_slip_travel_mm, pseudo_stick_ratio
-from incipient_slip.sim import contact
-from incipient_slip.sim.fingertip_modes import mode_sos, mode_state
-from incipient_slip.sim.protocols import run_collection, run_constant
-from incipient_slip.sim.rig import Rig, series_seed
-from incipient_slip.sim.scene import PARAMS_DIR, Scene, load_scene, scene_from_dict, validate_effects
+import numpy as np
+
+if TYPE_CHECKING:
+    from incipient_slip.sim.scene import Scene
+
+# `slip` imports this module to build its parser: the simulator, scipy and the models are
+# imported inside the functions that use them.
 
 NAME = "calibration"
 HELP = "fit the simulated rig to the paper's open-loop measurements; target-by-target table"
@@ -68,6 +68,7 @@ def add_arguments(parser) -> None:
 
 def with_effects(scene: Scene, effects) -> Scene:
     """Return the scene restricted to `effects` (those it has)."""
+    from incipient_slip.sim.scene import validate_effects
     keep = validate_effects([e for e in effects if scene.has(e)], scene.source or scene.name)
     return dataclasses.replace(scene, effects=keep)
 
@@ -101,6 +102,9 @@ def parse_overrides(items) -> dict:
 def onset_travel(scene: Scene, n_series: int, seed: int) -> dict:
     """Return onset travel (true y in the period before the label rule's onset) per series, and
     which series slipped, from collection series on the mechanics (materials round robin)."""
+    from incipient_slip.models.labels import gross_slip_travel_mm, pseudo_stick_ratio
+    from incipient_slip.sim.protocols import run_collection
+    from incipient_slip.sim.rig import Rig, series_seed
     mech = with_effects(scene, MECHANICS)
     mats = scene.materials
     travel, slipped, material, jump = [], [], [], []
@@ -123,6 +127,8 @@ def onset_travel(scene: Scene, n_series: int, seed: int) -> dict:
 
 def no_action(scene: Scene, runs: int, seed: int) -> dict:
     """Return the final y (mm) of `runs` no-action runs (constant 2.94 kPa, 450 steps) per material."""
+    from incipient_slip.sim.protocols import run_constant
+    from incipient_slip.sim.rig import Rig, series_seed
     mech = with_effects(scene, ("contact", "stick_slip"))
     return {mat: [float(list(run_constant(Rig(mech, mat, series_seed(seed, 100 * mi + j)), NO_ACTION_KPA))[-1]
                         .object_y_mm) for j in range(runs)]
@@ -158,6 +164,7 @@ def mechanics_objective(summary: dict) -> float:
 
 def fit_mechanics(scene: Scene, n_series: int, runs: int, seed: int, maxfev: int, progress: bool = True) -> dict:
     """Return the fitted stage-1 values, the summary at them and the optimizer's trace."""
+    from scipy import optimize
     x0 = np.log([scene.params[s][k] for s, k in FITTED])
     trace = []
 
@@ -185,6 +192,9 @@ def fit_mechanics(scene: Scene, n_series: int, runs: int, seed: int, maxfev: int
 
 def band_gain(p_modes: dict, a_mm: float, sar: float, shear: float, fs_hz: float, lo=150.0, hi=250.0) -> float:
     """Return the mean magnitude of the modal path's frequency response over [lo, hi] Hz."""
+    from scipy import signal
+
+    from incipient_slip.sim.fingertip_modes import mode_sos, mode_state
     sos = mode_sos(p_modes, *mode_state(p_modes, a_mm, sar, shear), fs_hz)
     f, h = signal.sosfreqz(sos, worN=np.linspace(lo, hi, 41), fs=fs_hz)
     return float(np.mean(np.abs(h)))
@@ -192,6 +202,7 @@ def band_gain(p_modes: dict, a_mm: float, sar: float, shear: float, fs_hz: float
 
 def fn_channel_ratio(scene: Scene) -> float:
     """Return P1: |band(5.9 kPa) - band(1.1 kPa)| in full stick over |band(s=1) - band(s=0)| at 2.9 kPa."""
+    from incipient_slip.sim import contact
     p = scene.params
     c = p["contact"]
     pm = {k: (np.asarray(v, float) if isinstance(v, list) else v) for k, v in p["fingertip_modes"].items()}
@@ -217,6 +228,8 @@ def band_amplitude(pac_counts_window: np.ndarray, fs_hz: float, lo_hz: float = 1
 
 def band_correlation(scene: Scene, seed: int, forces_kpa=(2.3, 3.5, 4.7)) -> dict:
     """Return Pearson R of the 150-250 Hz band amplitude vs F_T during stick per 'material@F_N'."""
+    from incipient_slip.sim.protocols import run_constant
+    from incipient_slip.sim.rig import Rig, series_seed
     vib = with_effects(scene, VIBRATION)
     fs = vib.params["timing"]["pac_rate_hz"]
     out = {}
@@ -302,6 +315,7 @@ def target_rows(mech: dict, vib: dict) -> list[dict]:
 
 def run(settings) -> dict:
     """Fit stage 1 and stage 2 and return the fitted values, the target table and provenance."""
+    from incipient_slip.sim.scene import PARAMS_DIR, load_scene
     opt = settings.option
     n_series = opt("series", settings.pick(25, 100))
     runs = opt("runs", settings.pick(2, 6))
@@ -438,6 +452,7 @@ def pattern_objective(items: dict) -> float:
 def fit_electrodes(scene: Scene, n_series: int, seed: int, work: Path, progress: bool) -> dict:
     """Return the electrode nuisance amplitudes from the documented grid (T6 items b and d decide;
     ties go to the smaller amplitudes), the estimation scores at them and the grid's rows."""
+    from incipient_slip.sim.scene import load_scene
     vib = _study(scene, "paper", ("injection",), n_series, seed, work, progress)
     vt = _study(dataclasses.replace(load_scene("no_injection"), params=scene.params), "no_injection",
                 ("vibrotactile",), n_series, seed, work, progress)

@@ -22,8 +22,6 @@ from pathlib import Path
 import numpy as np
 
 from incipient_slip import control
-from incipient_slip.sim.rig import Rig, series_seed
-from incipient_slip.sim.scene import load_scene
 
 from . import calibration as cal
 
@@ -67,6 +65,8 @@ def add_arguments(parser) -> None:
 
 
 def _scene(name: str, params: dict):
+    from incipient_slip.sim.scene import load_scene
+
     return dataclasses.replace(load_scene(name), params=params)
 
 
@@ -80,6 +80,7 @@ def closed_loop(method: str, params: dict, material: str, seed: int, model, step
                 s_d: float = control.DEFAULT_TARGET_STICK_RATIO) -> dict:
     """Return one run's outcome: the grip law on `method`'s estimate (or on the true ratio for
     'oracle', or no action for 'none') on the simulated rig with `params`."""
+    from incipient_slip.sim.rig import Rig
     from incipient_slip.models.estimator_core import estimate_window
 
     rig = Rig(_scene(SCENE_OF[method], params), material, seed)
@@ -117,6 +118,8 @@ SWEEP_METHODS = ("injection", "e19", "e10", "oracle")
 def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int, seed: int, work: str,
                sweep_runs: int = 0) -> dict:
     """Return everything of one point: its stage-1 refit, model scores and the Table's runs."""
+    from incipient_slip.sim.rig import series_seed
+    from incipient_slip.sim.scene import load_scene
     from incipient_slip.models.estimator_core import limit_blas_threads
     from incipient_slip.models.pipeline import run_study
     from incipient_slip.sim.dataset import write_dataset
