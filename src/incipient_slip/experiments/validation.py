@@ -286,7 +286,9 @@ def render(results: dict) -> dict:
     blocks["validation-set"] = "\n".join(lines)
     sw = {n: p["sweep_table"] for n, p in pts.items() if p.get("sweep_table")}
     if sw:
-        lines = [head, "", "| point | method | " + " | ".join(f"s_d {sd}" for sd in SWEEP_SD) + " |",
+        n_sweep = max(len(r) for p in pts.values() for by_sd in p.get("sweep", {}).values() for r in by_sd.values())
+        lines = [f"Simulated rig, not measurements: {n_sweep} runs per cell (seeds other than the Table's), "
+                 f"{results['steps']} steps, the point's own models.", "", "| point | method | " + " | ".join(f"s_d {sd}" for sd in SWEEP_SD) + " |",
                  "|---|---|" + "---|" * len(SWEEP_SD)]
         for name, t in sw.items():
             for m, by_sd in t.items():
