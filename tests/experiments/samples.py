@@ -57,17 +57,13 @@ def models() -> dict:
 
 
 def calibration() -> dict:
-    mats = ("pla", "abs")
-    return {"scene": "paper", "series_per_material": 1, "n_series": 2,
-            "travel_before_rule_mm": [1.5, 0.5], "travel_at_rule_mm": [4.0, 1.0],
-            "travel_before_true_mm": [1.5, 0.5], "onset_period": [200.0, 0.0],
-            "r_band200": [-0.96, -0.97, -0.93],
-            "no_control": {m: [3.0, 400.0, 0.5] for m in mats},
-            "coverage": {m: 2.7 for m in mats},
-            "oracle": {m: {"y": 0.8, "fn": 4.4, "y_max": 0.9, "s": 0.3, "held": 1.0, "k_fail": float("nan")}
-                       for m in mats},
-            "onset_by_material": {m: 1.5 for m in mats}, "latest_onset_actuator_mm": 17.0,
-            "label_hist": [1] * 10, "figures": ["sim_label_hist.png"]}
+    """The committed results behind docs/calibration.md."""
+    return json.loads((docs_dir() / "figures" / "calibration_results.json").read_text())
+
+
+def validation() -> dict:
+    """The committed results behind docs/validation.md."""
+    return json.loads((docs_dir() / "figures" / "validation_results.json").read_text())
 
 
 def stabilization() -> dict:
@@ -92,7 +88,7 @@ def diagnosis() -> dict:
             "step": {"0/0.6": {"2 kPa": phase, "5 kPa": phase}}}
 
 
-SAMPLES = {"calibration": calibration, "estimation": estimation, "accuracy-vs-time": accuracy_vs_time,
+SAMPLES = {"calibration": calibration, "validation": validation, "estimation": estimation, "accuracy-vs-time": accuracy_vs_time,
            "models": models, "stabilization": stabilization, "diagnosis": diagnosis}
 
 

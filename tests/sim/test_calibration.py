@@ -5,6 +5,8 @@ import shutil
 
 import pytest
 
+from incipient_slip.errors import UsageError
+
 from incipient_slip.experiments import calibration as cal
 from incipient_slip.sim.scene import PARAMS_DIR, load_params
 
@@ -33,7 +35,7 @@ def test_write_params_rewrites_value_and_source_and_keeps_the_file_loadable(tmp_
 
 @pytest.mark.parametrize("item", ["pre_slip.bulk_shear_n_per_mm", "x=1", "stick_slip.spring_n_per_mm=inf"])
 def test_bad_overrides_are_named(item):
-    with pytest.raises(ValueError, match="--set"):
+    with pytest.raises(UsageError, match="--set"):
         cal.parse_overrides([item])
 
 
@@ -56,7 +58,7 @@ def test_every_parameter_has_a_unit_and_a_source_fit_or_stated_assumption():
 
 
 def test_quick_calibration_prints_a_target_row_for_every_preregistered_target(tmp_path):
-    from incipient_slip.experiments._standalone import Settings
+    from incipient_slip.experiments.settings import Settings
     s = Settings(budget="quick", work=tmp_path, progress=False, options={"series": 5, "runs": 1, "maxfev": 3,
                                                                       "skip_estimation": True})
     res = cal.run(s)

@@ -1,6 +1,8 @@
 """The validation experiment's closed loop and report (the full sweep is an experiment, not a test)."""
 import pytest
 
+from incipient_slip.errors import UsageError
+
 from incipient_slip import control
 from incipient_slip.experiments import validation as val
 from incipient_slip.sim.scene import load_scene
@@ -42,6 +44,6 @@ def test_summary_and_render_label_the_simulated_rig():
 
 @pytest.mark.parametrize("opts, needle", [({"runs": 0}, "--runs"), ({"scheduler": "localhost:8786"}, "--scheduler")])
 def test_bad_options_are_named_errors(opts, needle, tmp_path):
-    from incipient_slip.experiments._standalone import Settings
-    with pytest.raises(ValueError, match=needle):
+    from incipient_slip.experiments.settings import Settings
+    with pytest.raises(UsageError, match=needle):
         val.run(Settings(budget="quick", work=tmp_path, progress=False, options=opts))

@@ -30,6 +30,7 @@ EXPERIMENTS = {
     "models": "incipient_slip.experiments.models",
     "stabilization": "incipient_slip.experiments.stabilization",
     "diagnosis": "incipient_slip.experiments.diagnosis",
+    "validation": "incipient_slip.experiments.validation",
 }
 
 

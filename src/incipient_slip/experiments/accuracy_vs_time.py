@@ -242,7 +242,7 @@ def run(settings: Settings) -> dict:
     from .datasets import study_datasets
     t0 = time.perf_counter()
     n = settings.option("series", settings.pick(quick=10, full=500))
-    steps = settings.pick(quick=200, full=450)
+    steps = 450
     data = study_datasets(settings, n, steps, scenes=("paper",))["paper"]
     result = run_sweeps(data, quick=settings.quick, progress=settings.progress)
     scale = scale_study(*result.pop("_prepared"), quick=settings.quick, progress=settings.progress)

@@ -22,6 +22,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from incipient_slip.errors import UsageError
+
 if TYPE_CHECKING:
     from incipient_slip.sim.scene import Scene
 
@@ -84,15 +86,18 @@ def with_values(scene: Scene, values: dict) -> Scene:
 
 
 def parse_overrides(items) -> dict:
-    """Return {(section, key): float} from 'section.key=value' strings (ValueError names a bad one)."""
+    """Return {(section, key): float} from 'section.key=value' strings (UsageError names a bad one)."""
     out = {}
     for item in items or ():
         m = re.fullmatch(r"([a-z_]+)\.([a-z_]+)=(.+)", item.strip())
         if not m:
-            raise ValueError(f"--set {item!r}: expected SECTION.KEY=VALUE")
-        value = float(m.group(3))
+            raise UsageError(f"--set {item!r}: expected SECTION.KEY=VALUE")
+        try:
+            value = float(m.group(3))
+        except ValueError:
+            raise UsageError(f"--set {item!r}: value is not a number") from None
         if not math.isfinite(value):
-            raise ValueError(f"--set {item!r}: value must be finite")
+            raise UsageError(f"--set {item!r}: value must be finite")
         out[(m.group(1), m.group(2))] = value
     return out
 
@@ -322,10 +327,17 @@ def run(settings) -> dict:
     maxfev = opt("maxfev", settings.pick(30, 80))
     for label, v in (("--series", n_series), ("--runs", runs), ("--maxfev", maxfev)):
         if v < 1:
-            raise ValueError(f"{label} must be >= 1, got {v}")
+            raise UsageError(f"{label} must be >= 1, got {v}")
+    from incipient_slip.sim.scene import SceneError
+
     fixed = parse_overrides(opt("overrides", []))
-    scene = load_scene(opt("scene", "paper"))
-    scene = with_values(scene, fixed)
+    try:
+        scene = load_scene(opt("scene", "paper"))
+        scene = with_values(scene, fixed)
+    except (SceneError, KeyError) as exc:
+        raise UsageError(str(exc).strip("'")) from exc
+    if not scene.has("injection"):
+        raise UsageError(f"scene {scene.name!r} has no 'injection' effect; the 200 Hz band target T5 needs it")
     if settings.progress:
         print(f"stage 1 (mechanics): {n_series} collection series + {runs} no-action runs per material "
               f"per evaluation, at most {maxfev} evaluations (simulated rig)", flush=True)
@@ -369,7 +381,7 @@ def run(settings) -> dict:
     written = ""
     if opt("write_params", False):
         if fixed:
-            raise ValueError("--write-params with --set would store a point of the uncertainty set as the nominal fit")
+            raise UsageError("--write-params with --set would store a point of the uncertainty set as the nominal fit")
         path = PARAMS_DIR / "default.yaml"
         write_params(path, fitted)
         written = str(path)

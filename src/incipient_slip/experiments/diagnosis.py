@@ -161,7 +161,7 @@ def run(settings: Settings) -> dict:
     limit_blas_threads(1)
     models = {m: load_model(method=m) for m in METHODS}
     data = study_datasets(settings, settings.pick(quick=10, full=TRAINING_SERIES),
-                          settings.pick(quick=200, full=450), seed=TRAINING_SEED, scenes=("paper",))["paper"]
+                          450, seed=TRAINING_SEED, scenes=("paper",))["paper"]
     slip = slip_force_stats(material, data)
     if slip["n_series"] == 0:
         raise UsageError(f"no collection series of material {material!r} in {data}")

@@ -37,7 +37,7 @@ def add_arguments(parser) -> None:
 def budget(settings: Settings) -> dict:
     """Return the sizes of the regeneration on this budget."""
     return {"series": settings.option("series", settings.pick(quick=10, full=100)),
-            "steps": settings.pick(quick=200, full=450),
+            "steps": 450,
             "max_train": settings.pick(quick=500, full=3000),
             "grid_max": settings.pick(quick=300, full=1500)}
 

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from incipient_slip.errors import UsageError
+
 from incipient_slip import control
 
 from . import calibration as cal
@@ -60,7 +62,7 @@ def add_arguments(parser) -> None:
                         help=f"also sweep s_d over {SWEEP_SD} at each point with this many runs per method (default 0: no sweep)")
     parser.add_argument("--keep", type=Path, metavar="RESULTS_JSON",
                         help="a previous results.json whose points not run this time are kept in the report")
-    parser.add_argument("--workers", type=int, help="LocalCluster workers (default 2)")
+    parser.add_argument("--workers", type=int, help="LocalCluster workers (default --jobs)")
     parser.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="a running dask scheduler instead of a LocalCluster")
 
 
@@ -184,12 +186,12 @@ def run(settings) -> dict:
     steps = opt("steps", settings.pick(60, control.MAX_STEPS))
     for label, v in (("--runs", runs), ("--series", n_series), ("--steps", steps)):
         if v < 1:
-            raise ValueError(f"{label} must be >= 1, got {v}")
+            raise UsageError(f"{label} must be >= 1, got {v}")
     scheduler = opt("scheduler")
     if scheduler and not str(scheduler).startswith(("tcp://", "tls://", "inproc://")):
-        raise ValueError(f"--scheduler {scheduler!r}: expected tcp://host:port")
+        raise UsageError(f"--scheduler {scheduler!r}: expected tcp://host:port")
     work = Path(settings.work) / "data"
-    cluster = None if scheduler else LocalCluster(n_workers=opt("workers", 2), threads_per_worker=1,
+    cluster = None if scheduler else LocalCluster(n_workers=opt("workers", settings.jobs), threads_per_worker=1,
                                                   processes=True, dashboard_address=None)
     client = Client(scheduler or cluster)
     try:
