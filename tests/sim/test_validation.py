@@ -47,3 +47,15 @@ def test_bad_options_are_named_errors(opts, needle, tmp_path):
     from incipient_slip.experiments.settings import Settings
     with pytest.raises(UsageError, match=needle):
         val.run(Settings(budget="quick", work=tmp_path, progress=False, options=opts))
+
+
+@pytest.mark.slow
+def test_results_do_not_depend_on_the_worker_count(tmp_path):
+    from incipient_slip.experiments.settings import Settings
+    tables = []
+    for workers in (1, 2):
+        opts = {"points": ["fitted", "beta 0"], "runs": 1, "series": 10, "steps": 4, "workers": workers,
+                "refits": ((5, 1, 2),)}
+        res = val.run(Settings(budget="quick", work=tmp_path / f"w{workers}", progress=False, options=opts))
+        tables.append({n: (p["fit"]["values"], p["runs"], p["rmse"]) for n, p in res["points"].items()})
+    assert tables[0] == tables[1]

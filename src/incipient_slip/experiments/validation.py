@@ -118,7 +118,7 @@ SWEEP_METHODS = ("injection", "e19", "e10", "oracle")
 
 
 def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int, seed: int, work: str,
-               sweep_runs: int = 0) -> dict:
+               sweep_runs: int = 0, refits=None) -> dict:
     """Return everything of one point: its stage-1 refit, model scores and the Table's runs."""
     from incipient_slip.sim.rig import series_seed
     from incipient_slip.sim.scene import load_scene
@@ -130,7 +130,7 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
     t0 = time.perf_counter()
     scene = cal.with_values(load_scene("paper"), {tuple(k.split(".")): v for k, v in overrides.items()})
     refits = 0
-    for n_fit, runs_fit, evals in REFITS:       # a second, larger refit only when the first misses T1-T4
+    for n_fit, runs_fit, evals in refits or REFITS:   # a second, larger refit only when the first misses T1-T4
         fit = cal.fit_mechanics(scene, n_fit, runs_fit, seed, evals, progress=False)
         scene = cal.with_values(scene, {tuple(k.split(".")): v for k, v in fit["values"].items()})
         summ = fit["summary"]
@@ -196,7 +196,7 @@ def run(settings) -> dict:
     client = Client(scheduler or cluster)
     try:
         futures = [client.submit(point_task, n, POINTS[n], runs, n_series, steps, settings.seed, str(work),
-                                 opt("sweep_runs", 0),
+                                 opt("sweep_runs", 0), opt("refits"),
                                  key=f"validation-{n.replace(' ', '_')}-{settings.seed}", pure=False) for n in names]
         done = {}
         for i, fut in enumerate(as_completed(futures), 1):
