@@ -79,7 +79,7 @@ def _window(prev, cur, stream: str) -> np.ndarray:
 
 
 def closed_loop(method: str, params: dict, material: str, seed: int, model, steps: int,
-                s_d: float = control.DEFAULT_TARGET_STICK_RATIO) -> dict:
+                s_d: float = control.DEFAULT_TARGET_STICK_RATIO, trace: list | None = None) -> dict:
     """Return one run's outcome: the grip law on `method`'s estimate (or on the true ratio for
     'oracle', or no action for 'none') on the simulated rig with `params`."""
     from incipient_slip.sim.rig import Rig
@@ -98,6 +98,9 @@ def closed_loop(method: str, params: dict, material: str, seed: int, model, step
         else:
             s = math.nan
         prev = out
+        if trace is not None:
+            trace.append({"y": out.object_y_mm, "fn": fn, "est": s, "true": out.load_ratio_stick,
+                          "sar": out.stick_area_ratio})
         if method != "none":
             fn = control.next_force(fn, s, cp, problem="" if math.isfinite(s) else "filling").normal_force_kpa
             if out.object_y_mm > control.FAILURE_TRAVEL_MM:
@@ -250,6 +253,37 @@ def _figure(points: dict, fig_dir: Path) -> str:
     return name
 
 
+def trajectory_figure(params: dict, models: dict, material: str, seed: int, fig_dir: Path) -> str:
+    """Write y, F_N and the estimate against s_d over one run per method (injection, E19, oracle);
+    return the figure's file name."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(3, 1, figsize=(7, 7), sharex=True)
+    for method in ("injection", "e19", "oracle"):
+        tr: list = []
+        closed_loop(method, params, material, seed, models.get(method), control.MAX_STEPS, trace=tr)
+        k = np.arange(1, len(tr) + 1)
+        axes[0].plot(k, [r["est"] if method != "oracle" else r["true"] for r in tr], lw=0.8, label=LABELS[method])
+        axes[1].plot(k, [r["fn"] for r in tr], lw=0.8)
+        axes[2].plot(k, [r["y"] for r in tr], lw=0.8)
+    axes[0].axhline(control.DEFAULT_TARGET_STICK_RATIO, color="k", ls="--", lw=0.7, label="s_d")
+    axes[1].axhline(control.SAFETY_LIMIT_KPA, color="r", ls="--", lw=0.7)
+    axes[2].axhline(control.FAILURE_TRAVEL_MM, color="r", ls="--", lw=0.7)
+    for ax, name in zip(axes, ("estimate (oracle: true load ratio)", "F_N [kPa] (limit 6.0)", "y [mm] (limit 1.5)")):
+        ax.set_ylabel(name, fontsize=8)
+    axes[0].legend(fontsize=7)
+    axes[2].set_xlabel("step (500 ms)")
+    axes[0].set_title(f"SIMULATED RIG, fitted point: one controlled run ({material}, seed {seed}) per method", fontsize=9)
+    fig.tight_layout()
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    name = "validation_trajectory.png"
+    fig.savefig(fig_dir / name, dpi=110)
+    plt.close(fig)
+    return name
+
+
 def _cell(v, fmt="{:.2f}") -> str:
     return "–" if v is None else fmt.format(v)
 
@@ -272,6 +306,11 @@ def render(results: dict) -> dict:
         o = t["oracle"]
         lines += ["", f"Oracle (diagnostic, the law on the simulator's true load ratio): success {o['success']:.1f}, "
                   f"y {o['y']:.2f} mm, F_N {o['fn']:.2f} kPa."]
+        if results.get("trajectory"):
+            f = results["trajectory"]
+            lines += ["", f"![simulated rig: one controlled run per method](figures/{f})",
+                      f"*Simulated rig, not a measurement: `{f}` (the shipped models, trained on the fitted "
+                      f"simulator; the paper's trajectory shape is held out).*"]
         blocks["validation-fitted"] = "\n".join(lines)
     methods = [m for m in TABLE_METHODS if m != "none"] + ["oracle"]
     lines = [head, "", "| point | consistent with T1-T4 | k_b [N/mm] | k_s [N/mm] | "
