@@ -58,7 +58,8 @@ class Electrodes:
         self.drift = rng.standard_normal(19) * p["drift_counts"]            # stationary start
         tau = p["settling_time_s"]
         t = (np.arange(n) + 1) * (period_s / n)
-        self.settle_w = np.exp(-t / tau)[:, None] if tau > 0 else np.zeros((n, 1))
+        with np.errstate(over="ignore", under="ignore"):     # tau -> 0: no settling (weights 0)
+            self.settle_w = np.exp(-t / tau)[:, None] if tau > 0 else np.zeros((n, 1))
 
     def inner_shift(self, pad_shear_mm: float, stiction_mm: float) -> float:
         """Return the inner skin's displacement after the pad sheared to pad_shear_mm (play operator)."""
