@@ -1,4 +1,5 @@
-"""Grip control law, supervisor rules and the paper's score: pure functions, no sockets.
+"""Grip control law, the controller's and supervisor's period bookkeeping, supervisor rules and
+the paper's score: pure code, no sockets, no clock of its own (callers pass the time).
 
 The paper (eq. "action") changes the normal force each sampling period by a(s) = k (s - s_d).
 We apply it with the sign that makes a *lower* stick ratio *raise* the normal force:
@@ -12,15 +13,20 @@ force and says why (``hold=True``, ``reason``).
 
 The supervisor's rules (:func:`judge_step`) end a run on the paper's failure conditions
 (y > 1.5 mm; F_N reaching the 6.0 kPa safety limit), on a fault (repeated holds: the estimate
-stream is gone) or after 450 steps (success). The score is the paper's eq. "reward",
+stream is gone) or after 450 steps (success). The grip controller node wires
+:class:`PeriodAnswerer` (each period answered once, deadline holds), the supervisor node
+:class:`RunJudge` (its own count of periods, traces by period); :func:`applied_force` is the
+clamp of the node that moves the hardware. The score is the paper's eq. "reward",
 (w1 + success rate)(w2 / y + w3 / F_N) with (w1, w2, w3) = (0.1, 10, 1).
 """
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 from incipient_slip.errors import EXIT_FAILURE, EXIT_FAULT, EXIT_SUCCESS
+from incipient_slip.messages import MOCAP_RATE_HZ, PERIOD_NS
 
 SAFETY_LIMIT_KPA = 6.0          # paper: failure when F_N > 6.0 kPa (the robot's safety limit)
 FAILURE_TRAVEL_MM = 1.5         # paper: failure when y > 1.5 mm (mean travel at gross slip)
@@ -127,6 +133,106 @@ def next_force(current_force_kpa: float, stick_ratio, params: ControlParams,
     return ControlDecision(clamp_force(current + change, params), False, "")
 
 
+def applied_force(command_kpa: float, current_kpa: float, limit_kpa: float = SAFETY_LIMIT_KPA) -> float:
+    """The force a node that moves the hardware applies for a command: clamped to [0, limit].
+
+    The second line of defence (the controller clamps first): a non-finite command keeps the
+    current force.
+    """
+    if not math.isfinite(command_kpa):
+        return min(max(current_kpa, 0.0), limit_kpa)
+    return min(max(command_kpa, 0.0), limit_kpa)
+
+
+@dataclass(frozen=True)
+class Answer:
+    """The grip command for one period."""
+
+    period: int
+    normal_force_kpa: float
+    hold: bool
+    reason: str = ""
+
+
+MAX_TICK_SKIP = 5          # ticks lost in a row that the controller follows; a bigger jump is refused
+
+
+class PeriodAnswerer:
+    """Answers each period the rig starts exactly once, in order (the grip controller's core).
+
+    `tick(k)` says the rig started period k; `estimate(...)` brings the estimate of a period;
+    `clock(now_s)` passes wall-clock time. Each returns the answers now due and a warning ("" if
+    none). Period k is answered on its estimate (the law, or a hold naming the problem when the
+    estimate is invalid, NaN, outside [0, 1] or of another method), at once when the method is
+    "none", or with a hold of the last safe force, reason "stale estimate", once
+    `estimate_timeout_s` passed after its tick. An estimate may come before its tick (another
+    publisher); one for a period the rig has not started (beyond the next one, or skipped) or
+    already answered is rejected and counted. Ticks advance by one (up to MAX_TICK_SKIP lost ones); a tick that
+    jumps further or goes back is refused and counted, so a forged period cannot end the run.
+    """
+
+    def __init__(self, params: ControlParams, initial_force_kpa: float, method: str,
+                 estimate_timeout_s: float):
+        self.params, self.method, self.timeout_s = params, method, estimate_timeout_s
+        self.force_kpa = clamp_force(initial_force_kpa, params)
+        self.last_tick: int | None = None
+        self.last_answered = -1
+        self.waiting: dict[int, float] = {}       # ticked period -> wall-clock deadline
+        self.rejected = self.refused_ticks = self.holds = 0
+
+    def tick(self, period: int, now_s: float) -> tuple[list[Answer], str]:
+        """Return (answers, warning) after the rig's tick for `period`."""
+        if self.last_tick is not None and not self.last_tick < period <= self.last_tick + 1 + MAX_TICK_SKIP:
+            self.refused_ticks += 1
+            return [], f"refused tick for period {period}: the rig was at period {self.last_tick}"
+        self.last_tick = period
+        if period <= self.last_answered:          # its estimate came first
+            return [], ""
+        if self.method == "none":
+            return self._answer(period, ControlDecision(self.force_kpa, False, "no action")), ""
+        self.waiting[period] = now_s + self.timeout_s
+        return [], ""
+
+    def estimate(self, period: int, stick_ratio, valid: bool, method: str,
+                 reason: str = "") -> tuple[list[Answer], str]:
+        """Return (answers, warning) after an estimate for `period`."""
+        if self.method == "none":
+            return [], ""
+        # the rig starts period k+1 once k is answered, maybe before its tick for k reached us
+        rig_next = max(-1 if self.last_tick is None else self.last_tick, self.last_answered) + 1
+        if period <= self.last_answered:
+            return self._reject(f"estimate for period {period} arrived after it was answered")
+        if period not in self.waiting and period != rig_next:   # not started, or skipped
+            return self._reject(f"estimate for period {period} while the rig is at period {rig_next}")
+        problem = estimate_problem(stick_ratio, valid, method=method, expected_method=self.method)
+        if problem:
+            problem = f"{problem} ({reason})" if reason else problem
+            self.rejected += 1
+        answers = self._answer(period, next_force(self.force_kpa, stick_ratio, self.params, problem))
+        return answers, f"period {period}: {problem}" if problem else ""
+
+    def clock(self, now_s: float) -> list[Answer]:
+        """Return the holds of the periods whose estimate is overdue at `now_s`."""
+        late = [k for k, deadline in self.waiting.items() if now_s >= deadline]
+        return self._answer(max(late), hold(self.force_kpa, "stale estimate", self.params)) if late else []
+
+    def _reject(self, why: str) -> tuple[list[Answer], str]:
+        self.rejected += 1
+        return [], why
+
+    def _answer(self, period: int, decision: ControlDecision) -> list[Answer]:
+        """Answers the waiting periods before `period` with holds (their estimate never came), then it."""
+        held = hold(self.force_kpa, "stale estimate", self.params)
+        answers = [Answer(k, held.normal_force_kpa, True, held.reason)
+                   for k in sorted(self.waiting) if k < period]
+        answers.append(Answer(period, decision.normal_force_kpa, decision.hold, decision.reason))
+        self.waiting = {k: t for k, t in self.waiting.items() if k > period}
+        self.last_answered = period
+        self.force_kpa = decision.normal_force_kpa
+        self.holds += sum(a.hold for a in answers)
+        return answers
+
+
 # --- supervisor ----------------------------------------------------------------------------
 
 @dataclass(frozen=True)
@@ -178,6 +284,160 @@ def judge_step(steps_done: int, travel_mm: float, force_kpa: float, consecutive_
                 Verdict("failure", f"{steps_done} steps; final y = {travel_mm:.3f} mm, "
                                    f"F_N = {force_kpa:.3f} kPa"))
     return Verdict()
+
+
+TRACES = ("step", "travel_mm", "force_kpa", "command_kpa", "hold", "stick_ratio_estimate")
+MOCAP_SAMPLE_NS = 1_000_000_000 // MOCAP_RATE_HZ   # the last pose of period k is within one sample of its end
+_KEEP_AHEAD = 8                          # periods of data kept ahead of the one being judged
+NAN = float("nan")
+
+
+class RunJudge:
+    """Judges a run period by period from each period's own messages (the supervisor's core).
+
+    The run's clock is its own count of periods: the first `command()` starts it, and each
+    later command must be for the next period; one that jumps or goes back is dropped and
+    counted (a forged period is never progress). A period is judged once its command, the
+    rig's F_N of that period and its last pose are in (and, for a command that acted on an
+    estimate, that estimate), or `data_wait_s` after its command when only the estimate is
+    missing (lost with a killed estimator), or once `data_wait_s` passed both since its command
+    and since the rig's last message when the rig's data are missing (`close(now_s)`). Commands may overtake the rig's
+    data (other publishers, fair-queued: a backlog of poses drains slower than commands), so
+    any number of periods can wait at once, each for its own data. Traces are recorded by period: two identical runs
+    give identical traces whatever order the messages arrived in.
+    """
+
+    def __init__(self, rules: SupervisorRules, max_missing_periods: int = 3,
+                 estimates_drive: bool = True, data_wait_s: float = 3.0, period_ns: int = PERIOD_NS):
+        self.rules, self.max_missing, self.period_ns = rules, max_missing_periods, period_ns
+        self.estimates_drive = estimates_drive     # False for "no action": no estimate to wait for
+        self.data_wait_s = data_wait_s
+        self.next_period: int | None = None
+        self.pending: deque = deque()              # (period, hold, command_kpa, deadline_s)
+        self.rig_heard_s = float("-inf")          # when the rig's last pose or F_N arrived
+        self.travel: dict[int, tuple[int, float]] = {}         # period -> (stamp, y) of its last pose
+        self.force: dict[int, float] = {}
+        self.estimates: dict[int, float] = {}
+        self.travel_mm = self.force_kpa = NAN                  # as last judged
+        self.steps = self.holds = self.consecutive_holds = self.missing = self.dropped = 0
+        self.traces: dict[str, list] = {key: [] for key in TRACES}
+        self.verdict = Verdict()
+
+    def pose(self, stamp_ns: int, travel_mm: float, now_s: float) -> None:
+        """Records a tracked pose: the y of its period is its last one."""
+        self.rig_heard_s = now_s
+        k = stamp_ns // self.period_ns
+        if self._wanted(self.travel, k) and stamp_ns >= self.travel.get(k, (-1, NAN))[0]:
+            self.travel[k] = (stamp_ns, travel_mm)
+
+    def robot(self, stamp_ns: int, force_kpa: float, now_s: float) -> None:
+        """Records the F_N the rig applied in the period that starts at `stamp_ns`."""
+        self.rig_heard_s = now_s
+        k = stamp_ns // self.period_ns
+        if self._wanted(self.force, k):
+            self.force[k] = force_kpa
+
+    def estimate(self, period: int, stick_ratio: float, valid: bool) -> None:
+        if self._wanted(self.estimates, period):
+            self.estimates[period] = stick_ratio if valid else NAN
+
+    def command(self, period: int, hold_: bool, command_kpa: float, now_s: float) -> str:
+        """Takes the command that closes `period`; returns why it was dropped ("" if taken)."""
+        if self.verdict.ended:
+            return ""
+        if self.next_period is not None and period != self.next_period:
+            self.dropped += 1
+            return f"dropped GripCommand(period={period}): the next period is {self.next_period}"
+        self.pending.append((period, hold_, command_kpa, now_s + self.data_wait_s))
+        self.next_period = period + 1
+        return ""
+
+    def close(self, now_s: float) -> Verdict:
+        """Judges the waiting periods whose data are in (or whose wait is over), in order."""
+        while self.pending and not self.verdict.ended:
+            k, hold_, command_kpa, deadline = self.pending[0]
+            wants_estimate = self.estimates_drive and not hold_
+            rig_done = k in self.force and self._pose_done(k)
+            # an estimate lost with its publisher (killed) waits only data_wait_s; the rig's
+            # data wait as long as the rig is still sending (a backlog draining)
+            late = now_s >= (deadline if rig_done else max(deadline, self.rig_heard_s + self.data_wait_s))
+            if not ((rig_done and (not wants_estimate or k in self.estimates)) or late):
+                break
+            self.pending.popleft()
+            self._judge(k, hold_, command_kpa, self.estimates.get(k, NAN) if wants_estimate else NAN)
+        return self.verdict
+
+    def _judge(self, k: int, hold_: bool, command_kpa: float, estimate: float) -> None:
+        past = [j for j in self.travel if j <= k]
+        if past:
+            self.travel_mm = self.travel[max(past)][1]
+        self.force_kpa = self.force.get(k, self.force_kpa)
+        for d in (self.travel, self.force, self.estimates):
+            for j in [j for j in d if j <= k]:
+                del d[j]
+        self.steps += 1
+        self.holds += hold_
+        self.consecutive_holds = self.consecutive_holds + 1 if hold_ else 0
+        for key, value in zip(TRACES, (self.steps, self.travel_mm, self.force_kpa, command_kpa,
+                                       hold_, estimate)):
+            self.traces[key].append(value)
+        known = math.isfinite(self.travel_mm) and math.isfinite(self.force_kpa)
+        # y or F_N not heard yet (e.g. this node joined after the rig's first period): not a
+        # verdict until it lasts `max_missing_periods`; the last period is always judged.
+        self.missing = 0 if known else self.missing + 1
+        if known or self.missing >= self.max_missing or self.steps >= self.rules.max_steps:
+            self.verdict = judge_step(self.steps, self.travel_mm, self.force_kpa,
+                                      self.consecutive_holds, self.rules)
+
+    def end(self, verdict: Verdict) -> None:
+        """Ends the run from outside (a silent graph, an interruption)."""
+        if not self.verdict.ended:
+            self.verdict = verdict
+
+    def summary(self, **recorded) -> dict:
+        """Return the run summary: verdict, final y and F_N, counts, `recorded` and the traces."""
+        v = self.verdict
+        return {"outcome": v.kind, "success": v.kind == "success", "detail": v.detail,
+                "steps": self.steps, "max_steps": self.rules.max_steps,
+                "final_travel_mm": self.travel_mm, "final_force_kpa": self.force_kpa,
+                "holds": self.holds, "dropped_commands": self.dropped, **recorded, "traces": self.traces}
+
+    def _pose_done(self, k: int) -> bool:
+        """The last pose of period k is in: one within a sample of its end, or a later one
+        (the rig's messages come in order)."""
+        end = (k + 1) * self.period_ns
+        return any(j > k for j in self.travel) or any(j > k for j in self.force) or (
+            k in self.travel and self.travel[k][0] >= end - MOCAP_SAMPLE_NS - 1_000_000)
+
+    def _wanted(self, data: dict, k: int) -> bool:
+        """Data of a period not judged yet and not far ahead (forged stamps cannot grow memory)."""
+        if self.next_period is not None:
+            first = self.pending[0][0] if self.pending else self.next_period
+            return first <= k <= self.next_period + _KEEP_AHEAD
+        if len(data) > _KEEP_AHEAD:       # before the first command: the newest periods
+            del data[min(data)]
+        return k >= 0
+
+
+def format_summary(summary: dict, path: str = "") -> str:
+    """One screen: the verdict, final y and F_N against the paper's limits, steps, where the JSON is."""
+    finite = lambda key: [v for v in summary["traces"][key] if isinstance(v, float) and math.isfinite(v)]  # noqa: E731
+    trace_y, trace_f = finite("travel_mm"), finite("force_kpa")
+    lines = [
+        f"stabilization run ({summary.get('rig', 'sim')} rig): {summary['outcome'].upper()} - {summary['detail']}",
+        f"  method {summary['method']}  s_d {summary['s_d']}  k {summary['k']}  "
+        f"material {summary['material'] or '(scene default)'}  seed {summary['seed']}",
+        f"  steps  {summary['steps']} / {summary.get('max_steps', MAX_STEPS)}",
+        f"  y      {summary['final_travel_mm']:.3f} mm (failure > {FAILURE_TRAVEL_MM} mm; "
+        f"max {max(trace_y, default=NAN):.3f})",
+        f"  F_N    {summary['final_force_kpa']:.3f} kPa (safety limit {SAFETY_LIMIT_KPA} kPa; "
+        f"range {min(trace_f, default=NAN):.2f}-{max(trace_f, default=NAN):.2f})",
+        f"  holds  {summary['holds']}   dropped commands {summary.get('dropped_commands', 0)}   "
+        f"wall {summary['wall_s']:.1f} s",
+    ]
+    if path:
+        lines.append(f"  summary {path}")
+    return "\n".join(lines)
 
 
 # --- score ---------------------------------------------------------------------------------

@@ -1,12 +1,16 @@
-"""Specification of the grip law, supervisor rules and score (pure functions)."""
+"""Specification of the grip law, the controller's and supervisor's period bookkeeping
+(`PeriodAnswerer`, `RunJudge`), the supervisor rules and the score: pure code, no sockets."""
+import json
 import math
 
 import pytest
 from hypothesis import given, settings, strategies as st
 
 from incipient_slip.control import (
-    ControlParams, SupervisorRules, action, estimate_problem, judge_step, next_force, score,
+    MAX_TICK_SKIP, SAFETY_LIMIT_KPA, ControlParams, PeriodAnswerer, RunJudge,
+    SupervisorRules, action, applied_force, estimate_problem, judge_step, next_force, score,
 )
+from incipient_slip.messages import PERIOD_NS
 
 PARAMS = ControlParams()
 ANY_FLOAT = st.floats(allow_nan=True, allow_infinity=True)
@@ -105,3 +109,203 @@ def test_no_action_rules_run_to_the_end():
 def test_score_matches_the_paper_formula():
     assert score(1.0, 1.38, 4.50) == pytest.approx(1.1 * (10 / 1.38 + 1 / 4.50))
     assert score(0.0, 2.48, 2.94) == pytest.approx(0.1 * (10 / 2.48 + 1 / 2.94))
+
+
+# --- the force applied by the node that moves the hardware ---------------------------------
+
+@given(ANY_FLOAT, st.floats(0.0, SAFETY_LIMIT_KPA))
+def test_applied_force_never_exceeds_the_safety_limit(command, current):
+    force = applied_force(command, current)
+    assert 0.0 <= force <= SAFETY_LIMIT_KPA
+    assert applied_force(99.0, current) == SAFETY_LIMIT_KPA
+
+
+# --- PeriodAnswerer: each period the rig starts is answered exactly once ---------------------
+
+EVENT = st.one_of(
+    st.tuples(st.just("tick"), st.integers(-1, 2 ** 64 - 1)),      # -1: the rig's next period
+    st.tuples(st.just("estimate"), st.integers(-3, 2), ESTIMATE, st.booleans(),
+              st.sampled_from(["injection", "injection", "e19"])),
+    st.tuples(st.just("clock"), st.floats(0.0, 1.0)),
+)
+
+
+def run_answerer(events, method="injection", params=PARAMS):
+    """Feeds the events to a PeriodAnswerer; returns (answerer, answers, accepted tick periods)."""
+    core = PeriodAnswerer(params, 2.9, method, estimate_timeout_s=0.4)
+    now, answers, ticked, nexts = 0.0, [], [], set()
+    for event in events:
+        nexts.add(max(-1 if core.last_tick is None else core.last_tick, core.last_answered) + 1)
+        if event[0] == "tick":
+            k = (core.last_tick if core.last_tick is not None else -1) + 1 if event[1] == -1 else event[1]
+            out, _ = core.tick(k, now)
+            if core.last_tick == k and k not in ticked:
+                ticked.append(k)
+        elif event[0] == "estimate":
+            base = core.last_tick if core.last_tick is not None else 0
+            out, _ = core.estimate(max(base + event[1], 0), event[2], event[3], event[4])
+        else:
+            now += event[1]
+            out = core.clock(now)
+        answers += out
+    return core, answers + core.clock(now + 10.0), ticked, nexts
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(EVENT, max_size=80), st.sampled_from(["injection", "none"]))
+def test_every_started_period_is_answered_exactly_once_in_order(events, method):
+    core, answers, ticked, nexts = run_answerer(events, method)
+    periods = [a.period for a in answers]
+    assert periods == sorted(set(periods))                  # in order, never twice
+    assert set(ticked) <= set(periods)                      # every tick answered
+    assert set(periods) <= set(ticked) | nexts              # only started (or starting) periods
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(EVENT, max_size=80), st.floats(0.0, 1.0), st.floats(0.0, 50.0))
+def test_answers_stay_within_the_force_range_and_the_rate_limit(events, s_d, k):
+    params = ControlParams(target_stick_ratio=s_d, gain_kpa=k)
+    _, answers, _, _ = run_answerer(events, params=params)
+    forces = [2.9] + [a.normal_force_kpa for a in answers]
+    assert all(params.min_force_kpa <= f <= params.max_force_kpa for f in forces)
+    assert all(abs(b - a) <= params.max_step_kpa + 1e-12 for a, b in zip(forces, forces[1:]))
+    for before, a in zip(forces, answers):
+        if a.hold:
+            assert a.normal_force_kpa == before and a.reason    # a hold keeps the last safe force
+
+
+def test_no_estimate_by_the_deadline_holds_the_last_safe_force_as_stale():
+    core = PeriodAnswerer(PARAMS, 2.9, "injection", estimate_timeout_s=0.4)
+    assert core.tick(0, now_s=0.0) == ([], "")
+    assert core.clock(0.39) == []
+    [answer] = core.clock(0.4)
+    assert (answer.period, answer.hold, answer.reason, answer.normal_force_kpa) == (0, True, "stale estimate", 2.9)
+    assert core.estimate(0, 0.1, True, "injection")[1].endswith("arrived after it was answered")
+
+
+@pytest.mark.parametrize("ratio, valid, method, why", [
+    (float("nan"), True, "injection", "not finite"), (1.5, True, "injection", "outside [0, 1]"),
+    (0.2, False, "injection", "marked invalid"), (0.2, True, "e19", "method 'e19'"),
+])
+def test_unusable_estimate_answers_its_period_with_a_hold_and_is_counted(ratio, valid, method, why):
+    core = PeriodAnswerer(PARAMS, 2.9, "injection", estimate_timeout_s=0.4)
+    core.tick(0, 0.0)
+    [answer], warning = core.estimate(0, ratio, valid, method)
+    assert answer.hold and why in answer.reason and why in warning and core.rejected == 1
+    assert answer.normal_force_kpa == 2.9
+
+
+def test_a_forged_tick_far_ahead_is_refused_and_the_run_goes_on():
+    core = PeriodAnswerer(PARAMS, 2.9, "none", estimate_timeout_s=0.4)
+    assert [a.period for a in core.tick(0, 0.0)[0]] == [0]
+    answers, warning = core.tick(2 ** 63, 0.0)
+    assert answers == [] and "refused tick for period 9223372036854775808" in warning
+    assert core.refused_ticks == 1
+    assert [a.period for a in core.tick(1, 0.0)[0]] == [1]
+    assert [a.period for a in core.tick(2 + MAX_TICK_SKIP, 0.0)[0]] == [2 + MAX_TICK_SKIP]   # lost ticks
+
+
+# --- RunJudge: the supervisor's own count, records by period ---------------------------------
+
+def period_messages(k, y=0.5, force=3.0, estimate=0.3):
+    """The rig's messages of period k (F_N at its start, three poses, the last one sample before
+    its end), the estimate and the command that answers it, as judge calls."""
+    start = k * PERIOD_NS
+    rig = [("robot", max(start, 1), force, 0.0)] + [
+        ("pose", start + t, y + 0.01 * i, 0.0) for i, t in enumerate((1, 250_000_000, PERIOD_NS - 8_333_333))]
+    return rig, ("estimate", k, estimate + 0.001 * k, True), ("command", k, False, force, 0.0)
+
+
+def feed(judge, message):
+    kind, *args = message
+    if kind == "command":
+        return judge.command(*args)
+    getattr(judge, kind)(*args)
+    return ""
+
+
+def test_a_forged_period_is_dropped_and_never_counts_as_progress():
+    judge = RunJudge(SupervisorRules(max_steps=3))
+    for k in range(3):
+        rig, estimate, command = period_messages(k)
+        for m in rig + [estimate]:
+            feed(judge, m)
+        assert feed(judge, command) == ""
+        if k == 0:
+            assert "dropped GripCommand(period=9223372036854775808)" in feed(judge, ("command", 2 ** 63, False, 3.0, 0.0))
+        verdict = judge.close(0.0)
+        assert (verdict.kind == "success") == (k == 2)
+    assert judge.steps == 3 and judge.traces["step"] == [1, 2, 3] and judge.dropped == 1
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.randoms(use_true_random=False), st.integers(1, 6))
+def test_traces_are_by_period_whatever_the_arrival_order(rnd, periods):
+    """Each publisher's messages keep their order (one pipe each); between the rig, the
+    estimator and the controller anything goes: a command may overtake the rig's data."""
+    streams = {"rig": [], "estimator": [], "controller": []}
+    for k in range(periods):
+        rig, estimate, command = period_messages(k, y=0.1 * k, force=2.0 + 0.1 * k)
+        streams["rig"] += rig
+        streams["estimator"].append(estimate)
+        streams["controller"].append(command)
+
+    def run(order):
+        judge = RunJudge(SupervisorRules(max_steps=100))
+        for message in order:
+            feed(judge, message)
+            judge.close(0.0)
+        return json.dumps(judge.traces)
+
+    in_order = [m for k in range(periods) for m in
+                streams["rig"][4 * k:4 * k + 4] + [streams["estimator"][k], streams["controller"][k]]]
+    shuffled, heads = [], {name: 0 for name in streams}
+    while any(heads[n] < len(streams[n]) for n in streams):
+        name = rnd.choice([n for n in streams if heads[n] < len(streams[n])])
+        shuffled.append(streams[name][heads[name]])
+        heads[name] += 1
+    reference = json.loads(run(in_order))
+    assert run(shuffled) == run(in_order)
+    assert reference["stick_ratio_estimate"] == [0.3 + 0.001 * k for k in range(periods)]
+    assert reference["travel_mm"] == [0.1 * k + 0.02 for k in range(periods)]     # the last pose of each
+
+
+def test_a_period_whose_data_never_come_is_judged_after_the_wait():
+    judge = RunJudge(SupervisorRules(max_steps=100), data_wait_s=3.0)
+    judge.robot(1, 3.0, now_s=10.0)
+    judge.command(0, False, 3.0, now_s=10.0)          # no pose, no estimate
+    judge.pose(2, 0.1, now_s=11.0)                    # the rig still talks: keep waiting
+    assert judge.close(13.9).kind == "" and judge.steps == 0
+    judge.close(14.0)
+    assert judge.steps == 1 and math.isnan(judge.traces["stick_ratio_estimate"][0])
+
+
+def test_commands_far_ahead_of_a_backlog_of_rig_data_wait_for_it():
+    """A command overtakes the rig's data by many periods (fair queuing under load): each
+    period is still judged with its own data."""
+    judge = RunJudge(SupervisorRules(max_steps=100))
+    messages = [period_messages(k, y=0.05 * k) for k in range(20)]
+    for _, estimate, command in messages:
+        feed(judge, estimate)
+        feed(judge, command)
+        judge.close(0.0)
+    assert judge.steps == 0 and len(judge.pending) == 20
+    for rig, _, _ in messages:
+        for m in rig:
+            feed(judge, m)
+    judge.close(0.0)
+    assert judge.traces["travel_mm"] == [0.05 * k + 0.02 for k in range(20)]
+
+
+def test_an_estimate_lost_with_its_publisher_is_waited_for_only_data_wait_s():
+    """The rig goes on (holds keep it going) but the estimate of period 0 never comes."""
+    judge = RunJudge(SupervisorRules(max_steps=100), data_wait_s=3.0)
+    rig, _, command = period_messages(0)
+    for m in rig:
+        feed(judge, m)
+    feed(judge, command)                               # acted on an estimate we never got
+    for t in (1.0, 2.0, 2.9):
+        judge.robot(PERIOD_NS, 3.0, now_s=t)            # the rig keeps talking
+        assert judge.close(t).kind == "" and judge.steps == 0
+    judge.close(3.0)
+    assert judge.steps == 1 and math.isnan(judge.traces["stick_ratio_estimate"][0])

@@ -8,6 +8,7 @@ import time
 import numpy as np
 import pytest
 
+from incipient_slip import control
 from incipient_slip.messages import (
     ActuatorState, BiotacPac, BiotacSlow, GripCommand, ObjectPose, PztCommand, PztState, RobotState,
 )
@@ -166,7 +167,7 @@ def test_collection_protocol_reproduces_the_data_set_series(graph):
     ctl.close()
 
 
-def test_lockstep_waits_for_the_grip_command_and_applies_its_force(graph):
+def test_lockstep_applies_only_the_awaited_period_and_clamps_to_the_safety_limit(graph):
     proc = start_rig(graph, scene="mechanics", steps=5, normal_force_kpa=2.5)
     ctl = Controller(graph.dir)
     connect(ctl, proc, ctl.grip)
@@ -175,12 +176,17 @@ def test_lockstep_waits_for_the_grip_command_and_applies_its_force(graph):
     while time.monotonic() - t < 0.3:     # nothing of period 1 before the answer to period 0
         ctl.spin_once(0.02)
     assert ctl.ticks() == 1 and len(ctl.got[RobotState]) == 1
-    ctl.grip.publish(GripCommand(normal_force_kpa=4.2, period=3))     # wrong period: ignored
+    ctl.grip.publish(GripCommand(normal_force_kpa=4.2, period=3))     # a future period: refused
     ctl.grip.publish(GripCommand(normal_force_kpa=4.4, period=0))
     ctl.spin_until(lambda: ctl.ticks() == 2, proc=proc)
-    assert [m.normal_force_kpa for m in ctl.got[RobotState]] == [2.5, 4.4]
-    assert [m.stamp_ns for m in ctl.got[RobotState]] == [1, 500_000_000]
-    assert "ignored GripCommand for period 3" in stop(proc)
+    ctl.grip.publish(GripCommand(normal_force_kpa=1.5, period=0))     # answered already: refused
+    ctl.grip.publish(GripCommand(normal_force_kpa=99.0, period=1))    # valid on the wire, unsafe
+    ctl.spin_until(lambda: ctl.ticks() == 3, proc=proc)
+    assert [m.normal_force_kpa for m in ctl.got[RobotState]] == [2.5, 4.4, control.SAFETY_LIMIT_KPA]
+    assert [m.stamp_ns for m in ctl.got[RobotState]] == [1, 500_000_000, 1_000_000_000]
+    err = stop(proc)
+    assert "refused GripCommand(period=3)" in err         # the repeat of period 0 is throttled
+    assert "asked 99.0 kPa; applying 6.0 kPa" in err
     ctl.close()
 
 

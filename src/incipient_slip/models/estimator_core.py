@@ -7,10 +7,14 @@ The estimator node is a thin wrapper around this module:
     est.push(stamp_ns, seq, counts)                 # every /biotac/pac (or /biotac/slow) message
     stick_ratio, valid, reason = est.estimate(window_end_ns)   # every 500 ms of stamps
 
+`PeriodEstimator` adds the scheduling the node needs: which period boundaries a frame makes
+due, catch-up over holes, resync after stamp jumps, the wall-clock watchdog.
+
 Frames: P_AC frames are int16 counts, 22 samples per 10 ms, stamped at their last sample;
 slow frames carry the 19 electrode counts of one 10 ms frame (or (n, 19) for n frames, the last
 stamped `stamp_ns`). Sample times are reconstructed backwards from the frame stamp at the
-stream rate. The window ending at `window_end_ns` is the samples with stamp in
+stream rate; they are kept as int64 offsets from the buffer's first frame, so any uint64 stamp
+works. The window ending at `window_end_ns` is the samples with stamp in
 [end - T, end), exactly as `features.series_features` cuts a recorded series.
 
 Validity: a seq gap (lost messages) or a stamp going backwards empties the buffer, and the
@@ -21,17 +25,23 @@ leave the buffer as it was (the node counts and drops them). Nothing here blocks
 """
 from __future__ import annotations
 
+import time
+from collections import deque
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
+from ..messages import PAC_SAMPLES_PER_FRAME, PERIOD_NS
 from .features import FEATURE_CODE_VERSION, N_ELECTRODES, FeatureSpec, phi
 from .modelfile import Model, ModelFileError, read_model_file
 
 __all__ = ["Model", "ModelFileError", "StreamError", "Estimate", "StreamingEstimator",
-           "load_model", "default_model_path", "estimate_window", "limit_blas_threads"]
+           "PeriodEstimate", "PeriodEstimator", "load_model", "default_model_path", "estimate_window", "limit_blas_threads"]
 
+MAX_STAMP_NS = (1 << 64) - 1   # stamps are uint64 on the wire
+MAX_CATCH_UP = 20          # boundaries estimated at once after a hole; beyond it, resynchronize
+_MAX_REL_NS = 1 << 62      # buffer stamps are int64 offsets from the buffer's first frame
 OK, FILLING, SEQ_GAP, STALE, BACKWARDS, NO_DATA = (
     "ok", "filling", "seq gap", "stale", "stamp went backwards", "no data")
 
@@ -76,6 +86,9 @@ def load_model(path: str | Path | None = None, *, method: str | None = None,
         if method is None:
             raise ModelFileError("load_model needs a path or a method")
         path = default_model_path(method)
+    if Path(path).is_dir():
+        raise ModelFileError(f"model file {path} is a directory; give a model file in it "
+                             f"(e.g. {Path(path) / 'injection.npz'})")
     model = read_model_file(path)
     spec, header = model.spec, model.header
     if spec.code_version != FEATURE_CODE_VERSION:
@@ -122,6 +135,7 @@ class StreamingEstimator:
         self._n = 0
         self._last_seq: int | None = None
         self._last_stamp: int | None = None
+        self._origin_ns = 0               # stamp that buffer stamp 0 stands for
         self._invalid_reason = FILLING
         self.gaps = 0
         self.backwards = 0
@@ -171,6 +185,10 @@ class StreamingEstimator:
                 self.backwards += 1
                 self.reset(BACKWARDS)
         self._last_seq, self._last_stamp = seq, stamp_ns
+        # Sample stamps are kept relative to the buffer's first frame, so that any uint64 stamp
+        # (up to 2^64 - 1) fits the int64 buffer; a jump of centuries starts the buffer afresh.
+        if self._n == 0 or stamp_ns - self._origin_ns > _MAX_REL_NS:
+            self._n, self._origin_ns = 0, stamp_ns
         n = len(values)
         if n > self._cap:
             values, n = values[-self._cap:], self._cap
@@ -180,7 +198,7 @@ class StreamingEstimator:
             self._stamps[:keep] = self._stamps[self._n - keep:self._n]
             self._n = keep
         back = np.arange(n - 1, -1, -1, dtype=np.float64) * self.period_ns
-        self._stamps[self._n:self._n + n] = stamp_ns - np.round(back).astype(np.int64)
+        self._stamps[self._n:self._n + n] = (stamp_ns - self._origin_ns) - np.round(back).astype(np.int64)
         self._values[self._n:self._n + n] = values
         self._n += n
 
@@ -191,6 +209,7 @@ class StreamingEstimator:
         if window_end_ns - self._last_stamp > self.stale_after_ns:
             return None, STALE
         stamps = self._stamps[:self._n]
+        window_end_ns -= self._origin_ns          # relative, as the buffer's stamps
         # samples sit on a grid of one period: "stamp < end" tested at end - period / 2 is immune
         # to the +-1 ns of reconstructing sample stamps from the frame stamp
         stop = int(np.searchsorted(stamps, window_end_ns - self.period_ns / 2, side="left"))
@@ -208,3 +227,121 @@ class StreamingEstimator:
         if w is None:
             return Estimate(float("nan"), False, reason)
         return Estimate(float(self.model.predict(phi(w[None], self.spec))[0]), True, OK)
+
+
+class PeriodEstimate(NamedTuple):
+    """The estimate of period k: the window [B - T, B) ending at the boundary B = (k+1) period."""
+
+    period: int
+    window_end_ns: int
+    stick_ratio: float
+    valid: bool
+    reason: str
+    latency_ns: int        # time spent computing it
+
+
+class PeriodEstimator:
+    """Schedules one estimate per period boundary from the frames' stamps (the estimator node's core).
+
+    Each `frame()` returns the estimates that became due: every boundary B <= the frame's last
+    sample gets exactly one estimate, in order. Boundaries a hole in the stream skipped are
+    estimated (invalid) with the data before them, up to MAX_CATCH_UP at once; a longer jump of
+    the stamps, or a stamp going backwards (the source restarted its clock), resynchronizes at
+    the new stamps. A seq gap (`gap()`) empties the buffer, so no estimate is valid until a full
+    window has arrived after it. `tick(now_s)` is the wall-clock watchdog: after
+    `wall_timeout_s` without a frame it gives one invalid "stale" estimate for the next boundary
+    and empties the buffer. A PZT state that contradicts the model (`pzt()`) makes estimates
+    invalid. Frames that do not fit the stream are refused and counted; nothing raises.
+    """
+
+    def __init__(self, model: Model, period_ns: int = PERIOD_NS, stale_after_ns: int = 50_000_000,
+                 wall_timeout_s: float = 0.0):
+        self.stream = StreamingEstimator(model, stale_after_ns=stale_after_ns)
+        self.method = model.spec.method
+        self.injection = model.spec.injection
+        self.period_ns = int(period_ns)
+        sample_ns = 1e9 / model.spec.rate_hz
+        self.half_sample_ns = int(sample_ns // 2)
+        self.frame_span_ns = round(((PAC_SAMPLES_PER_FRAME if model.spec.stream == "pac" else 1) - 1)
+                                   * sample_ns)
+        self.complete_ns = int(1.5 * sample_ns)   # a frame ending within this of B completes it
+        self.wall_timeout_s = wall_timeout_s
+        self.next_end_ns: int | None = None   # the next boundary B to estimate
+        self.last_stamp_ns: int | None = None
+        self.last_frame_s: float | None = None
+        self.stalled = False
+        self.pzt_problem = ""
+        self.published = self.invalid = self.refused = self.resyncs = 0
+        self.latencies_ns: deque = deque(maxlen=10_000)   # the newest, for the shutdown line
+
+    def gap(self) -> None:
+        """Messages were lost (seq gap): empty the buffer before the next frame goes in."""
+        self.stream.reset(SEQ_GAP)
+
+    def pzt(self, enabled: bool) -> str:
+        """Records the PZT state; returns the contradiction with the model ("" when none)."""
+        if self.injection is None or enabled == self.injection:
+            self.pzt_problem = ""
+        else:
+            self.pzt_problem = (f"PZT is {'on' if enabled else 'off'} but the {self.method} model "
+                                f"was trained with injection {'on' if self.injection else 'off'}")
+        return self.pzt_problem
+
+    def frame(self, stamp_ns: int, seq: int, samples, now_s: float) -> tuple[list[PeriodEstimate], str]:
+        """Return (estimates now due, warning or "") after one frame stamped at its last sample."""
+        if stamp_ns > MAX_STAMP_NS - self.period_ns:
+            self.refused += 1
+            return [], f"refused frame seq {seq}: stamp {stamp_ns} leaves no period boundary below 2^64"
+        self.last_frame_s, self.stalled = now_s, False
+        first_ns = stamp_ns - self.frame_span_ns
+        if self.next_end_ns is None or stamp_ns <= self.last_stamp_ns:
+            # first frame, or the source restarted its clock: the next boundary after this frame
+            self.next_end_ns = max(first_ns // self.period_ns + 1, 1) * self.period_ns
+        self.last_stamp_ns = stamp_ns
+        out, warning = self._until(first_ns + self.half_sample_ns)   # boundaries before it (a hole)
+        try:
+            self.stream.push(stamp_ns, seq, samples)
+        except StreamError as exc:
+            self.refused += 1
+            return out, f"refused frame seq {seq}: {exc}"
+        more, jumped = self._until(stamp_ns + self.complete_ns)       # boundaries it completes
+        return out + more, warning or jumped
+
+    def tick(self, now_s: float) -> list[PeriodEstimate]:
+        """The watchdog: one invalid "stale" estimate once no frame came for wall_timeout_s."""
+        if (self.wall_timeout_s <= 0 or self.last_frame_s is None or self.stalled
+                or now_s - self.last_frame_s < self.wall_timeout_s):
+            return []
+        self.stalled = True
+        self.stream.reset(STALE)
+        out = [self._estimate(self.next_end_ns, f"{STALE}: no frame for {self.wall_timeout_s} s")]
+        self.next_end_ns += self.period_ns
+        return out
+
+    def _until(self, limit_ns: int) -> tuple[list[PeriodEstimate], str]:
+        due = (limit_ns - self.next_end_ns) // self.period_ns + 1
+        warning = ""
+        if due > MAX_CATCH_UP:
+            self.resyncs += 1
+            warning = f"stamps jumped {due - 1} periods ahead; resynchronizing"
+            self.stream.reset(STALE)
+            self.next_end_ns += (due - 1) * self.period_ns
+        out = []
+        while self.next_end_ns <= limit_ns:
+            out.append(self._estimate(self.next_end_ns))
+            self.next_end_ns += self.period_ns
+        return out, warning
+
+    def _estimate(self, end_ns: int, reason: str = "") -> PeriodEstimate:
+        t = time.perf_counter_ns()
+        if reason:
+            ratio, valid = float("nan"), False
+        else:
+            ratio, valid, reason = self.stream.estimate(end_ns)
+            if valid and self.pzt_problem:
+                ratio, valid, reason = float("nan"), False, self.pzt_problem
+        latency = time.perf_counter_ns() - t
+        self.latencies_ns.append(latency)
+        self.published += 1
+        self.invalid += not valid
+        return PeriodEstimate(end_ns // self.period_ns - 1, end_ns, ratio, valid, reason, latency)

@@ -43,12 +43,12 @@ from collections import deque
 import numpy as np
 
 from incipient_slip import control
+from incipient_slip.errors import EXIT_FAULT
 from incipient_slip.messages import (
     PAC_RATE_HZ, PAC_SAMPLES_PER_FRAME, PERIOD_NS, ActuatorState, BiotacPac, BiotacSlow, GripCommand, ObjectPose, PztCommand, PztState,
     RobotState,
 )
-from incipient_slip.errors import EXIT_FAULT
-from incipient_slip.graph.params import ParamError
+from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.sim.protocols import collection_forces_kpa
 from incipient_slip.sim.rig import PeriodOutput, Rig
@@ -75,21 +75,24 @@ def slow_frame_stamps_ns(k: int) -> np.ndarray:
 class RigSim(Node):
     """Steps the simulated rig one period at a time and publishes what the devices would."""
 
+    INPUTS = {GripCommand.TOPIC: GripCommand, PztCommand.TOPIC: PztCommand}
+    OUTPUTS = {t.TOPIC: t for t in (BiotacPac, BiotacSlow, ObjectPose, PztState, RobotState, ActuatorState)}
     PARAMS = {
-        "scene": "paper",
-        "material": "",                   # "": the scene's first material
-        "seed": 0,
-        "protocol": "closed_loop",
-        "normal_force_kpa": control.DEFAULT_INITIAL_FORCE_KPA,   # F_N before the first command
-        "injection_db": None,             # None: the scene's injection_db
-        "steps": 450,
-        "lockstep": True,
-        "lockstep_timeout_s": 30.0,
-        "realtime_factor": 1.0,
-        "wait_subscribers": 1,
-        "wait_topics": [],                # [] = every topic it publishes
-        "wait_timeout_s": 10.0,
-        "exit_when_done": False,
+        "scene": Param("paper", help="scene file or name (scenes/)"),
+        "material": Param("", help='object material ("": the scene\'s first)'),
+        "seed": Param(0, lo=0, help="the rig's seed"),
+        "protocol": Param("closed_loop", choices=PROTOCOLS, help="closed_loop: apply /grip/command; collection: the data-set forces"),
+        "normal_force_kpa": Param(control.DEFAULT_INITIAL_FORCE_KPA, lo=0.0, hi=control.SAFETY_LIMIT_KPA,
+                                  help="F_N before the first command (kPa)"),
+        "injection_db": Param(None, help="PZT intensity (dB); None: the scene's"),
+        "steps": Param(450, lo=1, help="periods to simulate"),
+        "lockstep": Param(True, help="true: start period k+1 when GripCommand(period=k) arrives"),
+        "lockstep_timeout_s": Param(30.0, lo=0.0, help="lock-step: fault when no command this long (s); 0 waits forever"),
+        "realtime_factor": Param(1.0, lo=1e-3, help="real time: sim seconds per wall second"),
+        "wait_subscribers": Param(1, lo=0, help="readers per topic to wait for before period 0"),
+        "wait_topics": Param([], help="[] = every topic it publishes"),
+        "wait_timeout_s": Param(10.0, lo=0.0, help="longest wait for them (s)"),
+        "exit_when_done": Param(False, help="exit 0 after the last period"),
     }
 
     def __init__(self, **kwargs):
@@ -103,11 +106,6 @@ class RigSim(Node):
             raise ParamError(f"node {self.name!r}: parameter 'material' = {material!r} is not in "
                              f"scene {scene.name!r} ({', '.join(scene.materials)})")
         self.protocol = self.param("protocol")
-        if self.protocol not in PROTOCOLS:
-            raise ParamError(f"node {self.name!r}: parameter 'protocol' = {self.protocol!r}; "
-                             f"expected one of {', '.join(PROTOCOLS)}")
-        if not self.param("realtime_factor") > 0:
-            raise ParamError(f"node {self.name!r}: realtime_factor must be > 0")
         self.steps = self.param("steps")
         self.rig = Rig(scene, material, self.param("seed"))
         if self.param("injection_db") is not None:
@@ -136,6 +134,8 @@ class RigSim(Node):
         self.create_subscription(PztCommand, self.on_pzt)
 
         self.k = 0                        # next period to simulate
+        self.last_command = -1            # period of the last command applied
+        self.refused_commands = 0
         self.waiting_since = None         # lock-step: wall time we began waiting for period k-1
         self.queue: deque = deque()       # real time: (stamp_ns, publisher, message) not yet due
         self.t0 = None
@@ -162,6 +162,7 @@ class RigSim(Node):
         return super().spin()
 
     def wait_for_subscribers(self) -> None:
+        """Before period 0: `wait_subscribers` readers on each topic of `wait_topics`."""
         n, timeout = self.param("wait_subscribers"), self.param("wait_timeout_s")
         if n <= 0:
             return
@@ -246,20 +247,25 @@ class RigSim(Node):
     # --- commands ------------------------------------------------------------------------------
 
     def on_grip(self, msg: GripCommand) -> None:
+        # The node that moves the (simulated) hardware checks on its own: a command is for the
+        # period just started (lock-step: the one awaited), never an old or future one, and its
+        # force is clamped to the safety limit whatever the controller sent.
+        newest = self.k - 1
+        ok = msg.period == newest if self.lockstep else self.last_command < msg.period <= newest
+        if not ok or self.done:
+            if not ok:
+                self.refused_commands += 1
+                self.warn(f"refused GripCommand(period={msg.period}): the rig is at period {newest}, last "
+                          f"command {self.last_command} ({self.refused_commands} refused)", throttle_s=1.0)
+            return
+        self.last_command = msg.period
         if self.protocol == "closed_loop" and not msg.hold:
-            new_force = msg.normal_force_kpa
-        else:
-            new_force = self.force_kpa
-        if not self.lockstep:
-            self.force_kpa = new_force
-            return
-        if msg.period != self.k - 1 or self.done:
-            if msg.period != self.k - 1:          # the answer to the last period is expected
-                self.warn(throttle_s=1.0, key=("grip", "period"), text=f"ignored GripCommand for period "
-                                   f"{msg.period}: waiting for period {self.k - 1}")
-            return
-        self.force_kpa = new_force
-        self.advance()
+            self.force_kpa = control.applied_force(msg.normal_force_kpa, self.force_kpa)
+            if self.force_kpa != msg.normal_force_kpa:
+                self.warn(f"GripCommand(period={msg.period}) asked {msg.normal_force_kpa} kPa; applying "
+                          f"{self.force_kpa} kPa (safety limit {control.SAFETY_LIMIT_KPA} kPa)", throttle_s=1.0)
+        if self.lockstep:
+            self.advance()
 
     def on_pzt(self, msg: PztCommand) -> None:
         try:

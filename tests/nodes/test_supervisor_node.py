@@ -1,0 +1,62 @@
+"""The supervisor as a real process: it counts periods itself (a forged period is dropped,
+never progress) and writes its summary also when it is interrupted."""
+from __future__ import annotations
+
+import json
+import signal
+import time
+
+from incipient_slip.messages import PERIOD_NS
+from incipient_slip.graph.runtime import Node
+from incipient_slip.messages import GripCommand, Heartbeat, ObjectPose, RobotState, RunEvent, SlipEstimate
+
+
+class FakeLoop(Node):
+    """Publishes what the rig, estimator and controller would for chosen periods."""
+
+    def __init__(self, graph_dir):
+        super().__init__("fake_loop", graph_dir=graph_dir, heartbeat_s=0)
+        self.pubs = {t: self.create_publisher(t) for t in (RobotState, ObjectPose, SlipEstimate, GripCommand)}
+        self.events: list[RunEvent] = []
+        self.heard: set[str] = set()
+        self.create_subscription(RunEvent, self.events.append)
+        self.create_subscription(Heartbeat, lambda m: self.heard.add(m.node))
+
+    def spin_until(self, predicate, proc, timeout_s=20.0):
+        deadline = time.monotonic() + timeout_s
+        while not predicate():
+            assert proc.poll() is None, proc.stderr.read().decode()
+            assert time.monotonic() < deadline, "timed out"
+            self.spin_once(0.02)
+
+    def period(self, k, force_kpa=3.0, y_mm=0.2):
+        start = k * PERIOD_NS
+        self.pubs[RobotState].publish(RobotState(normal_force_kpa=force_kpa, stamp_ns=max(start, 1)))
+        self.pubs[ObjectPose].publish(ObjectPose(position_mm=[0.0, y_mm, 0.0], orientation_xyzw=[0, 0, 0, 1.0],
+                                                 stamp_ns=start + PERIOD_NS - 8_333_333))
+        self.pubs[SlipEstimate].publish(SlipEstimate(stick_ratio=0.3, valid=True, method="injection", period=k,
+                                                     stamp_ns=start + PERIOD_NS))
+        self.pubs[GripCommand].publish(GripCommand(normal_force_kpa=force_kpa, period=k))
+
+
+def test_forged_period_is_dropped_and_an_interrupted_run_still_writes_its_summary(graph, tmp_path):
+    summary = tmp_path / "run.json"
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.supervisor", "max_steps:=3", "method:=injection",
+                        f"summary_path:={summary}", "quiet:=true"])
+    node = FakeLoop(graph.dir)
+    for pub in node.pubs.values():
+        while not pub.wait_for_subscribers(1, 0.1):
+            assert proc.poll() is None, proc.stderr.read().decode()
+    node.spin_until(lambda: "supervisor" in node.heard, proc)         # its RunEvents reach us
+    node.period(0)
+    node.pubs[GripCommand].publish(GripCommand(normal_force_kpa=3.0, period=2 ** 32 - 1))   # valid, forged
+    node.period(1)
+    node.spin_until(lambda: [e.step for e in node.events if e.kind == "step"] == [1, 2], proc)
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(10) == 0
+    result = json.loads(summary.read_text())
+    assert result["outcome"] == "interrupted" and not result["success"]
+    assert result["steps"] == 2 and result["dropped_commands"] == 1
+    assert result["traces"]["step"] == [1, 2] and result["traces"]["stick_ratio_estimate"] == [0.3, 0.3]
+    assert "dropped GripCommand(period=4294967295)" in proc.stderr.read().decode()
+    node.close()
