@@ -23,6 +23,7 @@ The loop polls with at most `POLL_S` so that SIGINT/SIGTERM (which only set a fl
 from __future__ import annotations
 
 import heapq
+import json
 import os
 import signal
 import sys
@@ -40,7 +41,7 @@ from incipient_slip.errors import EXIT_FAILURE, EXIT_USAGE
 from incipient_slip.graph.params import ParamError, as_param, merge_params, parse_node_argv
 
 __all__ = ["Node", "Publisher", "RawPublisher", "Subscription", "RawSubscription", "Timer",
-           "run_node", "POLL_S", "LINGER_MS"]
+           "run_node", "POLL_S", "LINGER_MS", "ANY_TOPIC", "READERS_ENV", "HELLO"]
 
 POLL_S = 0.1              # longest a loop blocks before it looks at the stop flag
 LINGER_MS = 500           # longest close() waits to flush queued messages
@@ -48,6 +49,21 @@ HWM = 100_000             # per-peer queue, messages; P_AC at 100 frames/s is ti
 HEARTBEAT_S = 1.0
 DISCONNECT_GRACE_S = 2.0  # how long a withdrawn publisher stays connected so its last frames are read
 _LOG_EVERY_S = 1.0        # rate limit of repeated warnings (malformed frames, callback errors)
+READY_TIMEOUT_S = 10.0    # default wait for the named readers before a source starts anyway
+
+# A node's INPUTS/OUTPUTS key for "every topic": the recorder reads all, replay writes what its
+# file holds. The launcher counts such a node as a reader (writer) of every topic of the launch.
+ANY_TOPIC = "*"
+# Set by the launcher for each node: JSON {output topic after remaps: [reader node names]}, the
+# readers in this launch that `wait_for_readers` waits for. Unset (a node started by hand): none.
+READERS_ENV = "SLIP_READERS"
+# Each node, once its subscriptions are made, also subscribes HELLO + its name: a subscription no
+# one publishes on, whose XPUB message tells a publisher WHICH node is now subscribed (plain XPUB
+# subscription messages carry no identity). 0xFF sorts after every "/..." topic, which matters:
+# a SUB that connects late sends its subscriptions in ascending byte order (libzmq's trie), and a
+# SUB already connected sends each new one in the order it was made, so when a publisher reads a
+# node's hello, that node's other subscriptions have reached it before (same pipe, in order).
+HELLO = b"\xffhello/"
 
 
 class Publisher:
@@ -184,7 +200,8 @@ class Node:
     Keyword arguments (all optional, normally filled by `run_node` from the command line):
     `params` (overrides of PARAMS), `remaps` ({from topic: to topic}), `node_name` (overrides the
     name given by the subclass), `graph_dir` (default: discovery.graph_dir()), `raw_params` (the text
-    each command-line param came from), `heartbeat_s` (0 disables the heartbeat).
+    each command-line param came from), `heartbeat_s` (0 disables the heartbeat), `readers`
+    ({output topic: reader node names} for `wait_for_readers`; default: $SLIP_READERS).
     """
 
     PARAMS: dict[str, Any] = {}
@@ -197,7 +214,8 @@ class Node:
 
     def __init__(self, name: str, *, params: dict | None = None, remaps: dict | None = None,
                  node_name: str | None = None, graph_dir=None, raw_params: dict | None = None,
-                 heartbeat_s: float = HEARTBEAT_S, context: zmq.Context | None = None):
+                 heartbeat_s: float = HEARTBEAT_S, context: zmq.Context | None = None,
+                 readers: dict[str, list[str]] | None = None):
         self.name = node_name or name
         defaults: dict[str, Any] = {}
         for klass in reversed(type(self).__mro__):
@@ -217,6 +235,8 @@ class Node:
         self._sub_counts: dict[bytes, int] = {}
         self._warned: dict[Any, list] = {}
         self._shutdown_hooks: list[Callable[[], Any]] = []
+        self._said_hello = False
+        self._readers = _readers_from_env(self.name) if readers is None else dict(readers)
         self._log_prefix = "" if os.environ.get("SLIP_LAUNCHED") else f"[{self.name}] "
 
         self._dir = discovery.graph_dir() if graph_dir is None else Path(graph_dir)
@@ -265,7 +285,7 @@ class Node:
 
     def _check_declared(self, kind: str, declared, msg_type, topic: str) -> None:
         """Refuses a topic or type outside the node's INPUTS/OUTPUTS (when it declares them)."""
-        if declared is None or msg_type is M.Heartbeat:   # every node's own heartbeat
+        if declared is None or ANY_TOPIC in declared or msg_type is M.Heartbeat:   # its own heartbeat
             return
         if declared.get(topic) is not msg_type:
             have = ", ".join(f"{t} ({c.__name__})" for t, c in declared.items()) or "(none)"
@@ -307,8 +327,7 @@ class Node:
         self._subs.setdefault(topic, []).append(sub)
         self._sub.setsockopt(zmq.SUBSCRIBE, M.topic_frame(topic))
         self._info.subscribes[topic] = msg_type.__name__
-        self._announce()
-        self._discover()
+        self._after_subscribe()
         return sub
 
     def create_raw_subscription(self, callback: Callable[[str, bytes, int], Any],
@@ -319,10 +338,43 @@ class Node:
         sub = RawSubscription(self, topic, callback)
         self._raw_subs.append(sub)
         self._sub.setsockopt(zmq.SUBSCRIBE, M.topic_frame(topic) if topic else b"")
-        self._info.subscribes[topic or "*"] = "raw"
-        self._announce()
-        self._discover()
+        self._info.subscribes[topic or ANY_TOPIC] = "raw"
+        self._after_subscribe()
         return sub
+
+    @property
+    def readers(self) -> dict[str, list[str]]:
+        """{output topic: names of the nodes of this launch that read it} (the launcher's
+        topology; empty for a node started by hand)."""
+        return self._readers
+
+    def wait_for_readers(self, timeout_s: float = READY_TIMEOUT_S) -> bool:
+        """True once every node of this launch that reads one of this node's outputs has
+        subscribed here (its hello arrived, so its subscriptions are in place); at once when there
+        is no launch topology. False on timeout (with a warning naming the missing readers) or
+        shutdown. Call it after the node's own subscriptions are made, before the first message
+        that must not be lost: it says this node's hello too, so two nodes that wait for each
+        other both get through."""
+        self._say_hello()
+        names = sorted({n for readers in self._readers.values() for n in readers} - {self.name})
+        if not names:
+            return True
+        frames = [HELLO + name.encode() for name in names]
+        deadline = time.monotonic() + timeout_s
+        while True:
+            if time.monotonic() >= self._next_scan:
+                self._discover()      # our own subscriptions must connect too, or we deadlock
+            self._drain_xpub()
+            missing = [n for n, f in zip(names, frames) if not self._sub_counts.get(f)]
+            if not missing:
+                return True
+            left = deadline - time.monotonic()
+            if left <= 0 or self._stop:
+                if not self._stop:
+                    self.warn(f"readers {', '.join(missing)} not subscribed after {timeout_s:g} s; "
+                              f"starting without them")
+                return False
+            self._xpub.poll(min(left, POLL_S) * 1000.0, zmq.POLLIN)
 
     def create_timer(self, period_s: float, callback: Callable[[], Any]) -> Timer:
         """Calls `callback()` every `period_s` seconds (monotonic clock, first call after one period)."""
@@ -385,6 +437,8 @@ class Node:
         """Waits at most `timeout_s` for one message, handles it and any due timers."""
         # Hot path: one blocking recv with a receive timeout (no poller, no EAGAIN per message)
         # is what a raw pyzmq loop does; XPUB subscription news is read at discovery ticks.
+        if not self._said_hello:
+            self._say_hello()
         now = time.monotonic()
         if now >= self._next_scan:
             self._discover()
@@ -431,6 +485,21 @@ class Node:
 
     def _announce(self) -> None:
         discovery.announce(self._dir, self._info)
+
+    def _say_hello(self) -> None:
+        """Subscribes this node's hello topic, last (see HELLO); again after a later subscription,
+        so that a hello always follows every subscription made before it."""
+        hello = HELLO + self.name.encode()
+        if self._said_hello:
+            self._sub.setsockopt(zmq.UNSUBSCRIBE, hello)
+        self._sub.setsockopt(zmq.SUBSCRIBE, hello)
+        self._said_hello = True
+
+    def _after_subscribe(self) -> None:
+        if self._said_hello:
+            self._say_hello()
+        self._announce()
+        self._discover()
 
     def _discover(self) -> None:
         self._next_scan = time.monotonic() + POLL_S
@@ -533,6 +602,18 @@ class Node:
         self._hb_pub.publish(M.Heartbeat(node=self.name, pid=os.getpid(),
                                          uptime_s=time.monotonic() - self._t0,
                                          malformed_dropped=self.malformed, seq_gaps=self.seq_gaps))
+
+
+def _readers_from_env(node: str) -> dict[str, list[str]]:
+    text = os.environ.get(READERS_ENV)
+    if not text:
+        return {}
+    try:
+        table = json.loads(text)
+        return {str(t): [str(n) for n in names] for t, names in table.items()}
+    except (ValueError, AttributeError, TypeError):
+        raise ParamError(f"node {node!r}: ${READERS_ENV} is not JSON {{topic: [node names]}}: "
+                         f"{text[:80]!r}") from None
 
 
 def run_node(node_class: type[Node], argv: list[str] | None = None, **kwargs) -> int:
