@@ -1,8 +1,14 @@
-"""Shared test helpers: the `slow` marker and a private node graph per test.
+"""Shared test helpers: the `slow` marker, a private node graph per test, and a probe in it.
 
 `graph` gives a test its own graph directory (SLIP_GRAPH_DIR, short enough for ipc socket
 paths) and a `spawn()` that starts processes in it and kills whatever is left at teardown.
 A test that uses it gets a hard timeout of GRAPH_TIMEOUT_S unless it sets its own.
+
+`probe` is a node in the test process, in that graph: `probe.listen(Type)` records a topic,
+`probe.ready_on(topics)` returns once a message has arrived on each (so the connection to each
+writer is up and nothing it publishes later is missed), `probe.until(pred)` spins until a
+condition holds, `probe.nodes(names)` until nodes are announced. Each wait has a hard timeout
+and fails at once, with its stderr, when a process it watches exits. The only way tests wait.
 """
 from __future__ import annotations
 
@@ -12,7 +18,9 @@ import signal
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
+from typing import Callable, Iterable
 
 import pytest
 
@@ -25,7 +33,8 @@ def pytest_configure(config):
 
 def pytest_collection_modifyitems(items):
     for item in items:
-        if "graph" in getattr(item, "fixturenames", ()) and item.get_closest_marker("timeout") is None:
+        if {"graph", "probe"} & set(getattr(item, "fixturenames", ())) and \
+                item.get_closest_marker("timeout") is None:
             item.add_marker(pytest.mark.timeout(GRAPH_TIMEOUT_S))
 
 
@@ -70,3 +79,76 @@ def graph(monkeypatch):
     finally:
         g.close()
         shutil.rmtree(directory, ignore_errors=True)
+
+
+class Probe:
+    """A listening node in the test's graph and the waits built on it (see the module doc)."""
+
+    def __init__(self, graph: Graph):
+        from incipient_slip.graph.runtime import Node
+
+        self.graph = graph
+        self.node = Node("probe", graph_dir=graph.dir, heartbeat_s=0)
+        self.received: dict[str, list] = {}
+
+    def listen(self, msg_type, topic: str | None = None) -> list:
+        """The list every `msg_type` message on `topic` (default its TOPIC) will be added to."""
+        topic = topic or msg_type.TOPIC
+        if topic not in self.received:
+            self.received[topic] = []
+            self.node.create_subscription(msg_type, self.received[topic].append, topic=topic)
+        return self.received[topic]
+
+    def ready_on(self, topics: Iterable, timeout_s: float = 20.0, procs=()) -> None:
+        """Returns once a message has arrived on each topic (message types are listened to)."""
+        names = []
+        for t in topics:
+            if isinstance(t, str):
+                names.append(t)
+            else:
+                self.listen(t)
+                names.append(t.TOPIC)
+        self.until(lambda: all(self.received.get(t) for t in names), timeout_s, procs=procs,
+                   what=f"a message on each of {', '.join(names)}")
+
+    def nodes(self, names: Iterable[str], timeout_s: float = 20.0, procs=()) -> dict:
+        """{name: NodeInfo} once every named node is announced in the graph."""
+        from incipient_slip.graph import discovery
+
+        found: dict = {}
+
+        def announced():
+            found.update({i.name: i for i in discovery.scan(self.graph.dir)})
+            return set(names) <= set(found)
+        self.until(announced, timeout_s, procs=procs, what=f"nodes {', '.join(names)} announced")
+        return {n: found[n] for n in names}
+
+    def until(self, predicate: Callable[[], bool], timeout_s: float = 30.0, *, procs=(),
+              nodes=(), what: str = "") -> None:
+        """Spins the probe (and `nodes`) until `predicate()`; fails on timeout or when one of
+        `procs` exits first."""
+        deadline = time.monotonic() + timeout_s
+        while not predicate():
+            for proc in procs:
+                if proc.poll() is not None and not predicate():
+                    err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
+                    pytest.fail(f"waiting for {what or predicate}: {proc.args[:4]} exited "
+                                f"with {proc.returncode}:\n{err[-3000:]}")
+            if time.monotonic() > deadline:
+                pytest.fail(f"waiting for {what or predicate}: not within {timeout_s} s")
+            self.node.spin_once(0 if nodes else 0.01)   # one message (or timer) per call
+            for node in nodes:
+                node.spin_once(0.01 / len(nodes))
+
+    def close(self) -> None:
+        self.node.close()
+
+
+@pytest.fixture
+def probe(graph):
+    """A Probe in the test's private graph."""
+    p = Probe(graph)
+    try:
+        yield p
+    finally:
+        p.close()

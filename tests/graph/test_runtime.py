@@ -1,6 +1,7 @@
 """The node runtime over real ipc sockets: exact topics, gaps, params, remaps, fuzz, shutdown."""
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import time
@@ -21,15 +22,7 @@ def pac(i=0, **kw):
     return M.BiotacPac(pac_counts=np.full(22, i, dtype=np.int16), **kw)
 
 
-def spin_until(nodes, cond, timeout_s=5.0):
-    deadline = time.monotonic() + timeout_s
-    while not cond():
-        assert time.monotonic() < deadline, "condition not met in time"
-        for n in nodes:
-            n.spin_once(0.01)
-
-
-def test_subscription_gets_messages_in_order_with_no_gap(graph):
+def test_subscription_gets_messages_in_order_with_no_gap(graph, probe):
     with Node("a") as a, Node("b") as b:
         got = []
         pub = a.create_publisher(M.BiotacPac)
@@ -37,12 +30,12 @@ def test_subscription_gets_messages_in_order_with_no_gap(graph):
         assert pub.wait_for_subscribers(1, 5)
         for i in range(50):
             pub.publish(pac(i))
-        spin_until([b], lambda: len(got) == 50)
+        probe.until(lambda: len(got) == 50, 5, nodes=[b])
         assert [m.seq for m in got] == list(range(50))
         assert all(m.stamp_ns > 0 for m in got) and sub.gaps == 0
 
 
-def test_topic_match_is_exact_not_prefix(graph):
+def test_topic_match_is_exact_not_prefix(graph, probe):
     with Node("a") as a, Node("b") as b:
         got = []
         raw_pub = a.create_publisher(M.BiotacPac, "/biotac/pac_raw")
@@ -52,12 +45,12 @@ def test_topic_match_is_exact_not_prefix(graph):
         assert raw_pub.subscriber_count() == 0
         raw_pub.publish(pac(1))
         pub.publish(pac(2))
-        spin_until([b], lambda: len(got) == 1)
+        probe.until(lambda: len(got) == 1, 5, nodes=[b])
         b.spin_once(0.05)
         assert [int(m.pac_counts[0]) for m in got] == [2]
 
 
-def test_seq_gap_is_counted_and_reported(graph):
+def test_seq_gap_is_counted_and_reported(graph, probe):
     with Node("a") as a, Node("b") as b:
         gaps = []
         pub = a.create_publisher(M.BiotacPac)
@@ -65,11 +58,11 @@ def test_seq_gap_is_counted_and_reported(graph):
         assert pub.wait_for_subscribers(1, 5)
         for seq in (0, 1, 5, 6):
             pub.publish(pac(seq=seq), keep_seq=True)
-        spin_until([b], lambda: sub.received == 4)
+        probe.until(lambda: sub.received == 4, 5, nodes=[b])
         assert (sub.gaps, sub.missed, gaps) == (1, 3, [(1, 5)])
 
 
-def test_stamp_is_kept_when_set_and_remaps_change_topic(graph):
+def test_stamp_is_kept_when_set_and_remaps_change_topic(graph, probe):
     with Node("a", remaps={"/biotac/pac": "/sim/pac"}) as a, Node("b") as b:
         got = []
         pub = a.create_publisher(M.BiotacPac)
@@ -77,7 +70,7 @@ def test_stamp_is_kept_when_set_and_remaps_change_topic(graph):
         b.create_subscription(M.BiotacPac, got.append, topic="/sim/pac")
         assert pub.wait_for_subscribers(1, 5)
         pub.publish(pac(stamp_ns=123))
-        spin_until([b], lambda: got)
+        probe.until(lambda: got, 5, nodes=[b])
         assert got[0].stamp_ns == 123
 
 
@@ -124,19 +117,9 @@ def test_node_announces_itself_and_withdraws_on_close(graph):
     assert discovery.scan(graph.dir) == []
 
 
-def _wait_announced(graph, name, timeout_s=10.0):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        for info in discovery.scan(graph.dir):
-            if info.name == name and info.subscribes:
-                return info
-        time.sleep(0.02)
-    raise AssertionError(f"{name} never announced itself")
-
-
-def test_running_node_survives_fuzzed_frames_and_counts_them(graph):
+def test_running_node_survives_fuzzed_frames_and_counts_them(graph, probe):
     listener = graph.spawn(["python", str(NODES / "listener.py"), "report_every:=1"], stdout=None)
-    _wait_announced(graph, "listener")
+    probe.nodes(["listener"])
     rng = np.random.default_rng(0)
     good = M.encode(pac(7, stamp_ns=1, seq=0))
     bad = [good[:n] for n in (0, 1, 5, len(good) // 2, len(good) - 1)]
@@ -157,10 +140,10 @@ def test_running_node_survives_fuzzed_frames_and_counts_them(graph):
         for frames in ([b"/biotac/pac\0"], [b"/biotac/pac\0", good, b"extra"], [b"/biotac/pac\0\xff\xfe", good]):
             fuzzer._xpub.send_multipart(frames)
         fuzzer.create_publisher(M.BiotacPac).publish(pac(1))
-        spin_until([fuzzer], lambda: hb and hb[-1].malformed_dropped > 0 and hb[-1].uptime_s > 0, 10)
+        probe.until(lambda: hb and hb[-1].malformed_dropped > 0 and hb[-1].uptime_s > 0, 10, nodes=[fuzzer])
         # counts arrive with the next heartbeat after the frames were handled
         t_first = hb[-1].uptime_s
-        spin_until([fuzzer], lambda: hb[-1].uptime_s > t_first, 5)
+        probe.until(lambda: hb[-1].uptime_s > t_first, 5, nodes=[fuzzer])
         assert listener.poll() is None, "fuzzed frames killed the node"
         n_bad = sum(1 for b in bad if _is_bad(b))
         assert hb[-1].malformed_dropped == n_bad + 3    # + the three bad multipart messages
@@ -179,17 +162,17 @@ def _is_bad(body):
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_node_process_exits_0_promptly_on_signal(graph, sig):
+def test_node_process_exits_0_promptly_on_signal(graph, sig, probe):
     proc = graph.spawn(["python", str(NODES / "listener.py")])
-    _wait_announced(graph, "listener")
+    probe.nodes(["listener"])
     t0 = time.monotonic()
     proc.send_signal(sig)
     assert proc.wait(timeout=5) == 0
-    assert time.monotonic() - t0 < 1.5
-    assert discovery.scan(graph.dir) == []
+    assert time.monotonic() - t0 < 5.0     # not the 5 s grace of a launcher: the node itself stopped
+    assert [i.name for i in discovery.scan(graph.dir)] == ["probe"]
 
 
-def test_frames_of_a_publisher_that_just_exited_are_still_delivered(graph):
+def test_frames_of_a_publisher_that_just_exited_are_still_delivered(graph, probe):
     """ZeroMQ drops unread frames on disconnect: the runtime must read them before it lets go."""
     with Node("listener") as listener:
         got = []
@@ -199,7 +182,49 @@ def test_frames_of_a_publisher_that_just_exited_are_still_delivered(graph):
                               "count:=2000", "wait_for:=1"])
         # Connect to the talker, then read nothing until it is gone: all 2000 frames are queued
         # in our pipe when its announcement disappears.
-        spin_until([listener], lambda: len(listener._connected) > own, timeout_s=20)
+        probe.until(lambda: len(listener._connected) > own, 20, nodes=[listener])
         assert talker.wait(timeout=30) == 0
-        spin_until([listener], lambda: len(got) == 2000, timeout_s=10)
+        probe.until(lambda: len(got) == 2000, 10, nodes=[listener])
         assert [m.seq for m in got] == list(range(2000))
+
+
+def test_a_node_whose_constructor_fails_leaves_no_files(graph):
+    class Broken(Node):
+        PARAMS = {"model": ""}
+
+        def __init__(self, **kw):
+            super().__init__("broken", **kw)
+            self.on_shutdown(lambda: self.never_set)      # would raise: not run for a half-built node
+            raise ParamError(f"node {self.name!r}: parameter 'model': no such file")
+
+    assert run_node(Broken, []) == 2
+    assert sorted(os.listdir(graph.dir)) == []
+
+
+def test_files_of_a_sigkilled_node_are_removed_at_the_next_scan(graph, probe):
+    proc = graph.spawn(["python", str(NODES / "listener.py")])
+    probe.nodes(["listener"], procs=[proc])
+    assert any(name.startswith("listener-") and name.endswith(".sock") for name in os.listdir(graph.dir))
+    proc.kill()
+    proc.wait()
+    assert [i.name for i in discovery.scan(graph.dir)] == ["probe"]
+    assert not [n for n in os.listdir(graph.dir) if n.startswith("listener-")]
+
+
+def test_an_announcement_whose_pid_now_belongs_to_a_younger_process_is_stale(graph):
+    """pid reuse: the file of a node killed long ago names a pid that a newer process holds."""
+    info = discovery.NodeInfo("ghost", os.getpid(), "ipc:///nonexistent", started_ns=1)
+    discovery.announce(graph.dir, info)
+    assert discovery.scan(graph.dir) == []
+    assert os.listdir(graph.dir) == []
+
+
+def test_a_node_that_declares_no_outputs_still_beats(graph, probe):
+    beats = probe.listen(M.Heartbeat)
+
+    class Quiet(Node):
+        INPUTS: dict = {}
+        OUTPUTS: dict = {}
+
+    with Quiet("quiet", heartbeat_s=0.05) as quiet:
+        probe.until(lambda: any(b.node == "quiet" for b in beats), 10, nodes=[quiet])

@@ -22,8 +22,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["graph_dir", "NodeInfo", "announce", "withdraw", "scan", "ipc_endpoint", "Discovery",
-           "GRAPH_DIR_ENV", "GRAPH_ENV", "TRANSPORT_ENV"]
+__all__ = ["graph_dir", "GraphNameError", "NodeInfo", "announce", "withdraw", "scan", "remove_pid",
+           "ipc_endpoint", "Discovery", "GRAPH_DIR_ENV", "GRAPH_ENV", "TRANSPORT_ENV"]
 
 GRAPH_DIR_ENV = "SLIP_GRAPH_DIR"
 GRAPH_ENV = "SLIP_GRAPH"
@@ -31,6 +31,11 @@ TRANSPORT_ENV = "SLIP_TRANSPORT"     # "ipc" (default) or "tcp" (127.0.0.1, rand
 SUFFIX = ".node.json"
 _MAX_IPC_PATH = 100                  # sun_path is 108 bytes including the NUL; keep a margin
 _SAFE = re.compile(r"[^A-Za-z0-9_.-]")
+_PID_FILE = re.compile(r"^\.?(?:.*-)?(\d+)(?:\.node\.json(?:\.tmp)?|\.sock)$")   # what a node leaves
+
+
+class GraphNameError(ValueError):
+    """A graph name (--graph, $SLIP_GRAPH) that cannot be a directory name."""
 
 
 def graph_dir(graph: str | None = None, create: bool = True) -> Path:
@@ -41,7 +46,8 @@ def graph_dir(graph: str | None = None, create: bool = True) -> Path:
     else:
         name = graph or os.environ.get(GRAPH_ENV) or "default"
         if _SAFE.search(name) or name in (".", ".."):
-            raise ValueError(f"graph name {name!r}: use letters, digits, '_', '.', '-'")
+            origin = "--graph" if graph else f"${GRAPH_ENV}"
+            raise GraphNameError(f"graph name {name!r} ({origin}): use letters, digits, '_', '.', '-'")
         runtime = os.environ.get("XDG_RUNTIME_DIR")
         if runtime and os.path.isdir(runtime) and os.access(runtime, os.W_OK):
             base = Path(runtime) / "incipient-slip"
@@ -105,18 +111,59 @@ def withdraw(info: NodeInfo) -> None:
                 pass
 
 
-def _alive(pid: int) -> bool:
+def _alive(pid: int, started_ns: int = 0) -> bool:
+    """True if process `pid` exists and (when known) is not younger than `started_ns`, the
+    wall time its node announced itself: a pid reused by a newer process is not that node."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:
         return True
+    if started_ns:
+        born_ns = _start_time_ns(pid)
+        # 10 s of slack: boot-time arithmetic rounds to clock ticks, and a wall clock stepped
+        # back must not make a live node look dead (its files would be removed under it)
+        if born_ns is not None and born_ns > started_ns + 10_000_000_000:
+            return False
     return True
 
 
+def _start_time_ns(pid: int) -> int | None:
+    """Wall time process `pid` started (Linux /proc), or None where that is not known."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        ticks = int(stat.rsplit(")", 1)[1].split()[19])      # field 22, starttime
+        for line in Path("/proc/stat").read_text().splitlines():
+            if line.startswith("btime "):
+                return int(line.split()[1]) * 1_000_000_000 + ticks * 1_000_000_000 // os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def remove_pid(directory: Path, pid: int) -> int:
+    """Removes what a node of process `pid` left in a graph directory (announcement, ipc
+    socket, half-written file), e.g. after it was SIGKILLed; returns how many files."""
+    removed = 0
+    try:
+        entries = list(os.scandir(directory))
+    except FileNotFoundError:
+        return 0
+    for entry in entries:
+        m = _PID_FILE.match(entry.name)
+        if m and int(m.group(1)) == pid:
+            try:
+                os.unlink(entry.path)
+                removed += 1
+            except OSError:
+                pass
+    return removed
+
+
 def scan(directory: Path, clean: bool = True) -> list[NodeInfo]:
-    """The nodes announced in a graph directory; files of dead processes are removed."""
+    """The nodes announced in a graph directory; with `clean`, files of dead processes
+    (announcements, ipc sockets with no announcement) are removed."""
     out = []
     try:
         entries = list(os.scandir(directory))
@@ -124,6 +171,13 @@ def scan(directory: Path, clean: bool = True) -> list[NodeInfo]:
         return out
     for entry in entries:
         if not entry.name.endswith(SUFFIX) or entry.name.startswith("."):
+            if clean and entry.name.endswith(".sock"):
+                m = _PID_FILE.match(entry.name)
+                if m and not _alive(int(m.group(1))):
+                    try:
+                        os.unlink(entry.path)
+                    except OSError:
+                        pass
             continue
         try:
             raw = json.loads(Path(entry.path).read_text())
@@ -132,7 +186,7 @@ def scan(directory: Path, clean: bool = True) -> list[NodeInfo]:
                             int(raw.get("started_ns", 0)), Path(entry.path))
         except (OSError, ValueError, KeyError, TypeError):
             continue    # being replaced right now, or not ours
-        if not _alive(info.pid):
+        if not _alive(info.pid, info.started_ns):
             if clean:
                 withdraw(info)
             continue

@@ -17,9 +17,9 @@ import os
 import time
 from dataclasses import dataclass
 
-from incipient_slip.messages import MessageError, decode_any
+from incipient_slip.messages import Message, MessageError, decode_any
 from incipient_slip.graph import discovery
-from incipient_slip.graph.runtime import Node, run_node
+from incipient_slip.graph.runtime import ANY_TOPIC, Node, run_node
 
 
 @dataclass
@@ -57,6 +57,8 @@ class Monitor(Node):
 
     PARAMS = {"topics": [], "skip_topics": ["/heartbeat"], "expect_count": 0, "idle_s": 0.5,
               "timeout_s": 30.0, "summary_json": ""}
+    INPUTS = {ANY_TOPIC: Message}     # every topic of the graph (see graph/launch/topology.py)
+    OUTPUTS: dict = {}
 
     def __init__(self, **kwargs):
         super().__init__("monitor", **kwargs)

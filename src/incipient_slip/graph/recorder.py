@@ -20,10 +20,10 @@ from __future__ import annotations
 
 import time
 
-from incipient_slip.messages import MessageError, decode_any
+from incipient_slip.messages import Message, MessageError, decode_any
 from incipient_slip.graph.bag import FLUSH_S, BagError, BagWriter
 from incipient_slip.graph.params import Param, ParamError
-from incipient_slip.graph.runtime import Node, run_node
+from incipient_slip.graph.runtime import ANY_TOPIC, Node, run_node
 
 
 class Recorder(Node):
@@ -37,6 +37,8 @@ class Recorder(Node):
         "flush_s": Param(FLUSH_S, lo=0.01, hi=60.0,
                          help="longest a message waits in memory; a SIGKILL loses at most this"),
     }
+    INPUTS = {ANY_TOPIC: Message}     # every topic of the graph (see graph/launch/topology.py)
+    OUTPUTS: dict = {}
 
     def __init__(self, **kwargs):
         super().__init__("recorder", **kwargs)

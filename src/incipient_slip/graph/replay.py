@@ -17,10 +17,10 @@ import sys
 import time
 from pathlib import Path
 
-from incipient_slip.messages import MessageError, decode_any
+from incipient_slip.messages import Message, MessageError, decode_any
 from incipient_slip.graph.bag import BagError, bag_info, read_bag
 from incipient_slip.graph.params import ParamError
-from incipient_slip.graph.runtime import POLL_S, Node, run_node
+from incipient_slip.graph.runtime import ANY_TOPIC, POLL_S, Node, run_node
 from incipient_slip.paths import repo_root
 
 _YIELD_EVERY = 256       # at max speed, messages sent between two looks at signals and timers
@@ -41,6 +41,8 @@ class Replay(Node):
     PARAMS = {"path": "", "rate": 1.0, "max_speed": False, "loop": False, "topics": [],
               "skip_topics": ["/heartbeat"], "wait_subscribers": 1, "wait_timeout_s": 10.0,
               "end_hold_s": 1.0, "progress": False}
+    INPUTS: dict = {}
+    OUTPUTS = {ANY_TOPIC: Message}    # whatever its file holds (see graph/launch/topology.py)
 
     def __init__(self, **kwargs):
         super().__init__("replay", **kwargs)

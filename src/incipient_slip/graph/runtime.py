@@ -29,6 +29,7 @@ import signal
 import sys
 import time
 import traceback
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -263,10 +264,12 @@ class Node:
         self._connected: set[str] = set()
         self._retiring: dict[str, float] = {}   # endpoint -> monotonic time to disconnect
         self._next_scan = 0.0
+        _open_nodes.add(self)
         self._announce()
         self._hb_pub = None
         if heartbeat_s > 0:
-            self._hb_pub = self.create_publisher(M.Heartbeat)
+            # the runtime's own topic: outside any node's declared OUTPUTS
+            self._hb_pub = self._publisher(M.Heartbeat, self.resolve_topic(M.Heartbeat.TOPIC))
             self.create_timer(heartbeat_s, self._heartbeat)
 
     # --- the API nodes use -----------------------------------------------------------------
@@ -295,7 +298,9 @@ class Node:
     def create_publisher(self, msg_type: type[M.Message], topic: str | None = None) -> Publisher:
         """A publisher of `msg_type` on `topic` (default msg_type.TOPIC), after remaps."""
         self._check_declared("OUTPUTS", self.OUTPUTS, msg_type, topic or msg_type.TOPIC)
-        topic = self.resolve_topic(topic or msg_type.TOPIC)
+        return self._publisher(msg_type, self.resolve_topic(topic or msg_type.TOPIC))
+
+    def _publisher(self, msg_type: type[M.Message], topic: str) -> Publisher:
         pub = self._pubs.get(topic)
         if pub is not None:
             if pub.type is not msg_type:
@@ -461,17 +466,19 @@ class Node:
         if timers and timers[0].due <= time.monotonic():
             self._run_timers()
 
-    def close(self) -> None:
-        """Withdraws the announcement and closes the sockets (bounded linger). Idempotent."""
+    def close(self, run_hooks: bool = True) -> None:
+        """Runs the on_shutdown callbacks (unless `run_hooks` is False: a node whose constructor
+        failed), withdraws the announcement and closes the sockets (bounded linger). Idempotent."""
         if self._closed:
             return
         self._closed = True
-        for hook in self._shutdown_hooks:
+        for hook in self._shutdown_hooks if run_hooks else ():
             try:
                 hook()
             except Exception:
                 self.log(f"on_shutdown callback raised:\n{traceback.format_exc()}")
         discovery.withdraw(self._info)
+        _open_nodes.discard(self)
         self._sub.close(linger=0)
         self._xpub.close(linger=LINGER_MS)
 
@@ -604,6 +611,11 @@ class Node:
                                          malformed_dropped=self.malformed, seq_gaps=self.seq_gaps))
 
 
+# Nodes whose sockets are open: run_node closes the one whose constructor raised (no caller holds
+# it), so its announcement and ipc socket do not stay behind.
+_open_nodes: "weakref.WeakSet[Node]" = weakref.WeakSet()
+
+
 def _readers_from_env(node: str) -> dict[str, list[str]]:
     text = os.environ.get(READERS_ENV)
     if not text:
@@ -638,9 +650,15 @@ def run_node(node_class: type[Node], argv: list[str] | None = None, **kwargs) ->
         node.shutdown()
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    before = set(_open_nodes)
     try:
-        node = node_class(params=args.params, raw_params=args.raw, remaps=args.remaps,
-                          node_name=args.node_name, **kwargs)
+        try:
+            node = node_class(params=args.params, raw_params=args.raw, remaps=args.remaps,
+                              node_name=args.node_name, **kwargs)
+        except BaseException:
+            for half_built in set(_open_nodes) - before:
+                half_built.close(run_hooks=False)
+            raise
         return node.spin()
     except ParamError as exc:
         print(f"{node_class.__name__}: {exc}", file=sys.stderr)

@@ -1,11 +1,15 @@
 """Test node: exits with `code` after `after_s` seconds (0: runs until signalled)."""
 import sys
 
+from incipient_slip.graph.params import Param
 from incipient_slip.graph.runtime import Node, run_node
 
 
 class Exiter(Node):
-    PARAMS = {"after_s": 0.0, "code": 0}
+    PARAMS = {"after_s": Param(0.0, lo=0.0, help="seconds before it exits; 0: never"),
+              "code": Param(0, lo=0, hi=255, help="its exit code")}
+    INPUTS: dict = {}
+    OUTPUTS: dict = {}
 
     def __init__(self, **kwargs):
         super().__init__("exiter", **kwargs)

@@ -1,23 +1,29 @@
-"""Test node: counts P_AC frames; prints a line per `report_every` frames; exits after `count`."""
+"""Test node: counts P_AC frames; prints the first seq, a line per `report_every` frames; exits after `count`."""
 import sys
+import time
 
 from incipient_slip.messages import BiotacPac
 from incipient_slip.graph.runtime import Node, run_node
 
 
 class Listener(Node):
-    PARAMS = {"count": 0, "report_every": 0}
+    PARAMS = {"count": 0, "report_every": 0, "start_delay_s": 0.0}
+    INPUTS = {"/biotac/pac": BiotacPac}
+    OUTPUTS: dict = {}
 
     def __init__(self, **kwargs):
         super().__init__("listener", **kwargs)
+        time.sleep(self.param("start_delay_s"))     # a slow start (a model being loaded)
         self.sub = self.create_subscription(BiotacPac, self.on_pac)
 
     def on_pac(self, msg):
         n = self.sub.received
+        if n == 1:
+            print(f"first seq {msg.seq}", flush=True)
         if self.param("report_every") and n % self.param("report_every") == 0:
             print(f"received {n} seq {msg.seq} gaps {self.sub.gaps} dropped {self.sub.dropped}")
         if self.param("count") and n >= self.param("count"):
-            print(f"done {n} gaps {self.sub.gaps}")
+            print(f"done {n} gaps {self.sub.gaps}", flush=True)
             self.shutdown("got all")
 
 

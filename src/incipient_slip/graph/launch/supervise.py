@@ -1,0 +1,237 @@
+"""Supervise: start the resolved nodes as processes, watch them, stop them, choose the exit code.
+
+Each node runs in its own process group (a terminal's Ctrl-C reaches only the launcher, which
+then stops the nodes in order) with PR_SET_PDEATHSIG (if the launcher is killed, its nodes get
+SIGTERM). Output lines are prefixed `[name]`. When a node process ends, the launcher removes
+the discovery file and ipc socket it may have left (a SIGKILLed node cannot).
+
+Exit codes of a launch (docs/graph.md):
+  * a node exits 2 (bad input: a parameter, a file), required or not: the others are stopped at
+    once and the launch exits 2 with that node's last line repeated (restarting cannot help);
+  * a required node exits: the others are stopped; the launch exits with its code (128+N for
+    signal N);
+  * Ctrl-C / SIGTERM: the nodes are stopped; 0, or 1 if any node had to be SIGKILLed (at the
+    grace deadline, or at once by a second Ctrl-C);
+  * every node exited by itself: 0, or the first non-zero code.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+from incipient_slip.graph import discovery
+from incipient_slip.graph.launch.resolve import LaunchDescription, NodeSpec
+
+__all__ = ["Launcher", "GRACE_S", "EXIT_USAGE", "EXIT_KILLED"]
+
+GRACE_S = 5.0           # default: SIGTERM ... SIGKILL budget for the whole graph
+EXIT_USAGE = 2          # a node's "bad input" code, and the launch's
+EXIT_KILLED = 1         # a stop that needed SIGKILL
+TICK_S = 0.05           # supervision tick: node exits are found by polling
+
+
+def describe(rc: int) -> str:
+    """'exit code N' or 'signal NAME' for a Popen return code."""
+    if rc < 0:
+        try:
+            return f"signal {signal.Signals(-rc).name}"
+        except ValueError:
+            return f"signal {-rc}"
+    return f"exit code {rc}"
+
+
+def exit_code(rc: int) -> int:
+    """A Popen return code as a shell exit code (128+N for signal N)."""
+    return 128 - rc if rc < 0 else rc
+
+
+def _child_setup() -> None:
+    os.setpgid(0, 0)
+    try:
+        import ctypes
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)   # PR_SET_PDEATHSIG
+    except Exception:
+        pass
+
+
+class _Proc:
+    def __init__(self, spec: NodeSpec):
+        self.spec = spec
+        self.popen: subprocess.Popen | None = None
+        self.threads: list[threading.Thread] = []
+        self.respawn_at: float | None = None
+        self.rc: int | None = None
+        self.last_err = b""       # its last stderr line, repeated when it ends the launch
+
+
+class Launcher:
+    """Runs a resolved launch description; `run()` returns the launch's exit code."""
+
+    def __init__(self, desc: LaunchDescription, grace_s: float = GRACE_S, graph_dir: Path | None = None):
+        self.desc, self.grace_s = desc, grace_s
+        self.graph_dir = graph_dir or discovery.graph_dir()
+        self.procs = [_Proc(spec) for spec in desc.nodes]
+        self._lock = threading.Lock()
+        self._signal: int | None = None
+        self._signals = 0
+        self._killed: set[str] = set()
+
+    def say(self, text: str) -> None:
+        self._write(sys.stderr, f"[launch] {text}\n".encode())
+
+    def _write(self, stream, data: bytes) -> None:
+        with self._lock:
+            try:
+                stream.buffer.write(data)
+                stream.flush()
+            except (ValueError, OSError):
+                pass
+
+    def _pump(self, proc: _Proc, pipe, stream, prefix: bytes) -> None:
+        for line in iter(pipe.readline, b""):
+            line = line if line.endswith(b"\n") else line + b"\n"
+            if stream is sys.stderr and line.strip():
+                proc.last_err = line
+            self._write(stream, prefix + line)
+        pipe.close()
+
+    def _start(self, proc: _Proc) -> None:
+        env = dict(os.environ, SLIP_LAUNCHED="1", PYTHONUNBUFFERED="1",
+                   **{discovery.GRAPH_DIR_ENV: str(self.graph_dir)}, **proc.spec.env)
+        proc.popen = subprocess.Popen(proc.spec.argv(), stdin=subprocess.DEVNULL,
+                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+                                      preexec_fn=_child_setup)
+        proc.rc, proc.respawn_at, proc.last_err = None, None, b""
+        prefix = f"[{proc.spec.name}] ".encode()
+        proc.threads = [threading.Thread(target=self._pump, args=(proc, pipe, stream, prefix), daemon=True)
+                        for pipe, stream in ((proc.popen.stdout, sys.stdout),
+                                             (proc.popen.stderr, sys.stderr))]
+        for t in proc.threads:
+            t.start()
+
+    def _ended(self, proc: _Proc, rc: int) -> None:
+        """Books a node's end: its output read to the end, its discovery files removed."""
+        proc.rc = rc
+        for t in proc.threads:
+            t.join(timeout=1.0)
+        discovery.remove_pid(self.graph_dir, proc.popen.pid)
+
+    def _on_signal(self, signum, frame) -> None:
+        self._signals += 1
+        self._signal = signum
+        if self._signals >= 2:       # a second Ctrl-C: stop waiting, kill everything now
+            for proc in self.procs:
+                if proc.popen is not None and proc.popen.poll() is None:
+                    proc.popen.kill()
+                    self._killed.add(proc.spec.name)
+
+    def run(self) -> int:
+        old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            return self._run()
+        finally:
+            for s, handler in old.items():
+                signal.signal(s, handler)
+
+    def _run(self) -> int:
+        if not self.procs:
+            self.say(f"{self.desc.file}: no nodes to start")
+            return 0
+        for warning in self.desc.warnings:
+            self.say(f"warning: {warning}")
+        self.say(f"graph {self.graph_dir}: starting {', '.join(p.spec.name for p in self.procs)}")
+        for proc in self.procs:
+            if self._signal is not None:
+                break
+            self._start(proc)
+        first_failure = 0
+        while True:
+            if self._signal is not None:
+                self.say(f"{signal.Signals(self._signal).name}: shutting down")
+                self._shutdown()
+                if self._killed:
+                    self.say(f"launch ends with code {EXIT_KILLED}: SIGKILL was needed for "
+                             f"{', '.join(sorted(self._killed))}")
+                    return EXIT_KILLED
+                return 0
+            now = time.monotonic()
+            alive = 0
+            for proc in self.procs:
+                if proc.popen is None:
+                    continue
+                if proc.respawn_at is not None:
+                    if now >= proc.respawn_at:
+                        self.say(f"respawning {proc.spec.name}")
+                        self._start(proc)
+                    alive += 1
+                    continue
+                if proc.rc is not None:
+                    continue
+                rc = proc.popen.poll()
+                if rc is None:
+                    alive += 1
+                    continue
+                self._ended(proc, rc)
+                spec = proc.spec
+                if rc == EXIT_USAGE:
+                    self.say(f"{spec.name} refused its input (exit code {EXIT_USAGE}); shutting down the graph")
+                    self._shutdown()
+                    self.say(f"launch ends with code {EXIT_USAGE}: {spec.name}: "
+                             f"{proc.last_err.decode(errors='replace').strip()}")
+                    return EXIT_USAGE
+                if spec.respawn:
+                    self.say(f"{spec.name} exited with {describe(rc)}; respawning in {spec.respawn_delay:g} s")
+                    proc.respawn_at = now + spec.respawn_delay
+                    alive += 1
+                elif spec.required:
+                    # "died" only for a signal: a node's own non-zero code is an outcome it chose
+                    # (e.g. the supervisor reporting a failed run), not necessarily a crash
+                    verb = "finished" if rc == 0 else ("died" if rc < 0 else "exited")
+                    self.say(f"required node {spec.name} {verb} with {describe(rc)}; shutting down the graph")
+                    self._shutdown()
+                    if rc != 0:
+                        self.say(f"launch ends with code {exit_code(rc)}: required node {spec.name} "
+                                 f"{describe(rc)}")
+                    return exit_code(rc)
+                else:
+                    self.say(f"{spec.name} exited with {describe(rc)}")
+                    if rc != 0 and not first_failure:
+                        first_failure = exit_code(rc)
+            if alive == 0:
+                self.say("all nodes have exited")
+                return first_failure
+            time.sleep(TICK_S)
+
+    def _shutdown(self) -> None:
+        """Stops every node: SIGTERM in reverse start order, then SIGKILL at the deadline
+        (the names of the nodes that needed it go to self._killed)."""
+        deadline = time.monotonic() + self.grace_s
+        running = [p for p in reversed(self.procs) if p.popen is not None and p.rc is None
+                   and p.respawn_at is None]
+        for proc in running:
+            if proc.popen.poll() is None:
+                try:
+                    proc.popen.send_signal(signal.SIGTERM)
+                except ProcessLookupError:
+                    pass
+                # wait a little for each so that sinks (started first) stop after sources
+                try:
+                    proc.popen.wait(timeout=max(0.0, min(1.0, deadline - time.monotonic() - 0.5)))
+                except subprocess.TimeoutExpired:
+                    pass
+        for proc in running:
+            try:
+                proc.popen.wait(timeout=max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                self.say(f"{proc.spec.name} did not stop within {self.grace_s:g} s: SIGKILL")
+                proc.popen.kill()
+                proc.popen.wait()
+                self._killed.add(proc.spec.name)
+            self._ended(proc, proc.popen.returncode)
+            if proc.rc not in (0, -signal.SIGTERM):
+                self.say(f"{proc.spec.name} stopped with {describe(proc.rc)}")

@@ -1,0 +1,137 @@
+"""Topology: which node of a launch writes and reads which topic, from the nodes' declarations.
+
+The launcher imports each node's module (it does not start it), takes the `Node` subclass
+defined there, reads its `INPUTS`/`OUTPUTS` and applies the node's remaps. From that table it
+prints the graph (`launch FILE --print`), warns about a topic read but written by no node, and
+tells each node (in `$SLIP_READERS`) the readers of its outputs, which `Node.wait_for_readers`
+waits for. A tool that reads or writes whatever the graph holds declares `ANY_TOPIC` ("*"):
+the recorder and the monitor read every topic, replay writes every topic (what its file holds
+is known only when it runs), so replay waits for every reader of the launch.
+"""
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from incipient_slip.graph.launch.parse import LaunchError
+from incipient_slip.graph.runtime import ANY_TOPIC, Node
+
+__all__ = ["NodeTopics", "Topology", "node_class"]
+
+_loaded: dict[str, object] = {}
+
+
+def _module(target: str):
+    """The module of a node: a dotted module name or a .py path (imported once, not run)."""
+    if target in _loaded:
+        return _loaded[target]
+    if target.endswith(".py"):
+        name = "_launch_node_" + "".join(c if c.isalnum() else "_" for c in target)
+        spec = importlib.util.spec_from_file_location(name, target)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    else:
+        module = importlib.import_module(target)
+    _loaded[target] = module
+    return module
+
+
+def node_class(target: str) -> type[Node] | None:
+    """The Node subclass defined in the module `target`; None when there is not exactly one."""
+    try:
+        module = _module(target)
+    except Exception as exc:   # a node module that does not import would fail to start anyway
+        raise LaunchError(f"cannot import node module {target}: {type(exc).__name__}: {exc}") from None
+    found = [obj for obj in vars(module).values()
+             if isinstance(obj, type) and issubclass(obj, Node) and obj is not Node
+             and obj.__module__ == module.__name__]
+    return found[0] if len(found) == 1 else None
+
+
+@dataclass
+class NodeTopics:
+    """The topics of one node after its remaps ({topic: type name}); None: not declared."""
+
+    name: str
+    inputs: dict[str, str] | None
+    outputs: dict[str, str] | None
+
+    @classmethod
+    def of(cls, name: str, klass: type[Node] | None, remaps: dict[str, str]) -> "NodeTopics":
+        def after_remaps(declared):
+            if declared is None:
+                return None
+            return {remaps.get(t, t): (getattr(c, "__name__", "any") if t != ANY_TOPIC else "any")
+                    for t, c in declared.items()}
+        if klass is None:
+            return cls(name, None, None)
+        return cls(name, after_remaps(klass.INPUTS), after_remaps(klass.OUTPUTS))
+
+
+@dataclass
+class Topology:
+    """Writers and readers of every topic of a launch."""
+
+    nodes: list[NodeTopics]
+    writers: dict[str, list[str]] = field(default_factory=dict)
+    readers: dict[str, list[str]] = field(default_factory=dict)
+    types: dict[str, str] = field(default_factory=dict)
+
+    def __post_init__(self):
+        for side, table in (("outputs", self.writers), ("inputs", self.readers)):
+            for node in self.nodes:
+                for topic, type_name in (getattr(node, side) or {}).items():
+                    table.setdefault(topic, []).append(node.name)
+                    if topic != ANY_TOPIC and type_name != "any":
+                        self.types.setdefault(topic, type_name)
+
+    def topics(self) -> list[str]:
+        """Every named topic of the launch, sorted."""
+        return sorted((set(self.writers) | set(self.readers)) - {ANY_TOPIC})
+
+    def writers_of(self, topic: str) -> list[str]:
+        return self.writers.get(topic, []) + self.writers.get(ANY_TOPIC, [])
+
+    def readers_of(self, topic: str) -> list[str]:
+        return self.readers.get(topic, []) + self.readers.get(ANY_TOPIC, [])
+
+    def readers_of_node(self, name: str) -> dict[str, list[str]]:
+        """{output topic of node `name`: the other nodes reading it} (what it waits for)."""
+        node = next(n for n in self.nodes if n.name == name)
+        outputs = node.outputs or {}
+        topics = self.topics() if ANY_TOPIC in outputs else [t for t in outputs if t != ANY_TOPIC]
+        out = {}
+        for topic in topics:
+            readers = [r for r in self.readers_of(topic) if r != name]
+            if readers:
+                out[topic] = readers
+        return out
+
+    def warnings(self) -> list[str]:
+        """A line for each topic read by a node but written by none, or declared with two types,
+        and for each node whose topics are not declared."""
+        lines = []
+        for topic in self.topics():
+            if self.readers.get(topic) and not self.writers_of(topic):
+                lines.append(f"topic {topic} is read by {', '.join(self.readers[topic])} but no "
+                             f"node of this launch writes it")
+        for node in self.nodes:
+            for side in ("inputs", "outputs"):
+                for topic, type_name in (getattr(node, side) or {}).items():
+                    expected = self.types.get(topic)
+                    if type_name != "any" and expected and type_name != expected:
+                        lines.append(f"topic {topic}: {node.name} declares {type_name}, another "
+                                     f"node {expected}")
+            if node.inputs is None and node.outputs is None:
+                lines.append(f"node {node.name} declares no INPUTS/OUTPUTS: its topics are not "
+                             f"shown and nobody waits for it")
+        return lines
+
+    def to_plain(self) -> list[dict]:
+        """One row per topic: type, writers, readers (what `--print` shows)."""
+        return [{"topic": t, "type": self.types.get(t, "any"), "writers": self.writers_of(t),
+                 "readers": self.readers_of(t)} for t in self.topics()]

@@ -1,0 +1,217 @@
+"""The resolver: documents + args in, nodes, checked params and the topic graph out."""
+from __future__ import annotations
+
+import json
+import textwrap
+from pathlib import Path
+
+import pytest
+import yaml
+
+from incipient_slip.graph.launch import LaunchError, load_text, main
+from incipient_slip.graph.runtime import READERS_ENV
+
+NODES = Path(__file__).parent / "nodes"
+EXITER, RELAY, TALKER, LISTENER = (NODES / f"{n}.py" for n in ("exiter", "relay", "talker", "listener"))
+
+RIGS = textwrap.dedent(f"""
+    launch:
+      # which rig feeds the graph
+      - arg: {{name: rig, default: sim, description: "sim | replay | hardware"}}
+      - arg: {{name: rate, default: "100"}}
+      - group:
+          if: "$(var rig) == sim"
+          actions:
+            - node: {{exec: {EXITER}, name: rig_sim, param: [{{name: after_s, value: "$(var rate)"}}]}}
+      - node:
+          exec: {EXITER}
+          name: replay
+          if: "$(eval '$(var rig)' == 'replay')"
+          remap: [{{from: /biotac/pac, to: /replay/pac}}]
+      - group:
+          unless: "$(var rig) != hardware"
+          actions:
+            - node: {{exec: {EXITER}, name: biotac_reader, required: true}}
+      - node:
+          exec: {EXITER}
+          name: estimator
+          param: [{{name: code, value: 2}}, {{name: after_s, value: 0.5}}]
+          respawn: "$(var rig) == hardware"
+          respawn_delay: 2
+""")
+
+
+@pytest.mark.parametrize("rig,expected", [("sim", ["rig_sim", "estimator"]),
+                                          ("replay", ["replay", "estimator"]),
+                                          ("hardware", ["biotac_reader", "estimator"])])
+def test_one_file_serves_every_rig(rig, expected):
+    desc = load_text(RIGS, {"rig": rig}, "rigs.yaml")
+    assert [n.name for n in desc.nodes] == expected
+    assert desc.args == {"rig": rig, "rate": "100"}
+
+
+def test_resolved_tree_has_typed_params_remaps_and_flags():
+    desc = load_text(RIGS, {"rig": "replay"}, "rigs.yaml")
+    replay, estimator = desc.nodes
+    assert replay.remaps == {"/biotac/pac": "/replay/pac"}
+    assert estimator.params == {"code": 2, "after_s": 0.5}
+    assert (estimator.required, estimator.respawn) == (False, False)
+    sim = load_text(RIGS, {"rate": "7.5"}, "rigs.yaml").nodes[0]
+    assert sim.params == {"after_s": 7.5}
+    hw = load_text(RIGS, {"rig": "hardware"}, "rigs.yaml").nodes
+    assert (hw[0].required, hw[1].respawn, hw[1].respawn_delay) == (True, True, 2.0)
+    assert hw[1].argv()[-3:] == ["__name:=estimator", "code:=2", "after_s:=0.5"]
+
+
+def test_env_and_eval_substitutions(monkeypatch):
+    monkeypatch.setenv("SLIP_TEST_X", "abc")
+    desc = load_text(textwrap.dedent(f"""
+        launch:
+          - arg: {{name: n, default: "$(eval 2 * 3 + 1)"}}
+          - node:
+              exec: {RELAY}
+              param:
+                - {{name: a, value: "$(env SLIP_TEST_X)"}}
+                - {{name: b, value: "$(env SLIP_TEST_UNSET 'fallback')"}}
+                - {{name: c, value: "$(var n)"}}
+                - {{name: d, value: "pre-$(var n)"}}
+    """))
+    assert desc.nodes[0].params == {"a": "abc", "b": "fallback", "c": 7, "d": "pre-7"}
+    with pytest.raises(LaunchError, match="not allowed"):
+        load_text('launch:\n  - arg: {name: n, default: "$(eval __import__(\'os\'))"}\n')
+
+
+def test_include_passes_args(tmp_path):
+    (tmp_path / "inner.yaml").write_text(textwrap.dedent(f"""
+        launch:
+          - arg: {{name: who}}
+          - node: {{exec: {EXITER}, name: "inner_$(var who)"}}
+    """))
+    outer = tmp_path / "outer.yaml"
+    outer.write_text('launch:\n  - include: {file: inner.yaml, arg: [{name: who, value: x}]}\n')
+    assert [n.name for n in load_text(outer.read_text(), {}, outer).nodes] == ["inner_x"]
+
+
+@pytest.mark.parametrize("doc,match", [
+    ("launch:\n  - node: {name: y}\n", r"f.yaml:2: key 'exec': required"),
+    ("launch:\n  - node: {exec: no_such_node}\n", r"f.yaml:2: key 'exec': no node module incipient_slip.nodes.no_such_node"),
+    ("launch:\n  - node: {exec: x, pkg: ros}\n", r"f.yaml:2: key 'pkg': unknown package 'ros'"),
+    ("launch:\n  - arg: {name: a}\n", r"f.yaml:2: key 'default': arg 'a' has no default"),
+    ("launch:\n  - node: {exec: x, if: \"$(var nope) == 1\"}\n", r"f.yaml:2: key 'if': \$\(var nope\): no such arg"),
+    ("launch:\n  - node: {exec: x, if: maybe}\n", r"key 'if': condition 'maybe'"),
+    ("launch:\n  - arg: {name: a, default: 1}\n  - arg: {name: a, default: 2}\n", r"f.yaml:3: key 'name': arg 'a' is declared twice"),
+    (f"launch:\n  - node: {{exec: {EXITER}}}\n  - node: {{exec: {EXITER}}}\n", r"f.yaml:3: node name 'exiter' is already used"),
+])
+def test_bad_documents_name_file_line_and_key(doc, match):
+    with pytest.raises(LaunchError, match=match):
+        load_text(doc, {}, "f.yaml")
+
+
+def test_unknown_command_line_arg_lists_known_args():
+    with pytest.raises(LaunchError) as info:
+        load_text(RIGS, {"rgi": "sim"}, "rigs.yaml")
+    assert "unknown launch argument rgi" in str(info.value)
+    assert "rig" in str(info.value) and "rate" in str(info.value)
+
+
+# --- params checked against the node's declarations, before anything starts -------------------
+
+ONE = textwrap.dedent(f"""\
+    launch:
+      - arg: {{name: code, default: "0"}}
+      - arg: {{name: after_s, default: "1.0"}}
+      - node:
+          exec: {EXITER}
+          name: supervisor
+          param: [{{name: code, value: "$(var code)"}}, {{name: after_s, value: "$(var after_s)"}}]
+""")
+
+
+@pytest.mark.parametrize("arg,value,why", [
+    ("code", "300", "code:=300 is above its range [0, 255]"),
+    ("code", "-1", "code:=-1 is below its range [0, 255]"),
+    ("after_s", ".inf", "after_s:=.inf is not a finite number"),
+    ("after_s", ".nan", "after_s:=.nan is not a finite number"),
+    ("after_s", "-5", "after_s:=-5.0 must be >= 0.0"),
+    ("code", "lots", "parameter 'code' = 'lots' (str) does not fit its default 0 (int)")])
+def test_a_launch_arg_outside_the_nodes_declared_range_is_refused_naming_it(arg, value, why):
+    with pytest.raises(LaunchError) as info:
+        load_text(ONE, {arg: value}, "one.yaml")
+    assert str(info.value) == f"one.yaml:7: node 'supervisor': {'parameter ' if ':=' in why else ''}{why}"
+
+
+def test_an_unknown_param_is_refused_listing_the_known():
+    with pytest.raises(LaunchError, match=r"no parameter 'cdoe'; known: after_s, code"):
+        load_text(f"launch:\n  - node: {{exec: {EXITER}, param: [{{name: cdoe, value: 1}}]}}\n")
+
+
+# --- the topic graph -------------------------------------------------------------------------
+
+GRAPH = textwrap.dedent(f"""
+    launch:
+      - node: {{pkg: graph, exec: recorder, param: [{{name: path, value: /tmp/never.mcap}}]}}
+      - node: {{exec: {TALKER}}}
+      - node: {{exec: {RELAY}, remap: [{{from: /slip/estimate, to: /slip/estimate_e19}}]}}
+      - node: {{exec: {LISTENER}}}
+""")
+
+
+def test_topics_list_writers_and_readers_after_remaps():
+    desc = load_text(GRAPH, {}, "g.yaml")
+    topics = {row["topic"]: row for row in desc.topology.to_plain()}
+    assert set(topics) == {"/biotac/pac", "/slip/estimate_e19"}
+    assert topics["/biotac/pac"] == {"topic": "/biotac/pac", "type": "BiotacPac", "writers": ["talker"],
+                                     "readers": ["relay", "listener", "recorder"]}
+    assert topics["/slip/estimate_e19"]["writers"] == ["relay"]
+    assert topics["/slip/estimate_e19"]["readers"] == ["recorder"]
+    assert desc.warnings == []
+
+
+def test_each_node_is_told_the_named_readers_of_its_outputs():
+    nodes = {n.name: n for n in load_text(GRAPH, {}, "g.yaml").nodes}
+    assert json.loads(nodes["talker"].env[READERS_ENV]) == {"/biotac/pac": ["relay", "listener", "recorder"]}
+    assert json.loads(nodes["relay"].env[READERS_ENV]) == {"/slip/estimate_e19": ["recorder"]}
+    assert READERS_ENV not in nodes["listener"].env and READERS_ENV not in nodes["recorder"].env
+
+
+def test_a_reader_without_a_writer_is_a_warning_and_replay_writes_every_topic():
+    desc = load_text(f"launch:\n  - node: {{exec: {LISTENER}}}\n", {}, "g.yaml")
+    assert desc.warnings == ["topic /biotac/pac is read by listener but no node of this launch writes it"]
+    desc = load_text(f"launch:\n  - node: {{exec: {LISTENER}}}\n"
+                     f"  - node: {{pkg: graph, exec: replay, param: [{{name: path, value: x.mcap}}]}}\n")
+    assert desc.warnings == []
+    replay = next(n for n in desc.nodes if n.name == "replay")
+    assert json.loads(replay.env[READERS_ENV]) == {"/biotac/pac": ["listener"]}
+
+
+def test_print_shows_nodes_topics_and_handshakes(tmp_path, capsys):
+    path = tmp_path / "g.yaml"
+    path.write_text(GRAPH)
+    assert main([str(path), "--print"]) == 0
+    printed = yaml.safe_load(capsys.readouterr().out)
+    assert printed["topics"]["/biotac/pac"] == {"type": "BiotacPac", "writers": ["talker"],
+                                                "readers": ["relay", "listener", "recorder"]}
+    talker = next(n for n in printed["nodes"] if n["name"] == "talker")
+    assert talker["waits_for"] == ["listener", "recorder", "relay"] and "env" not in talker
+
+
+def test_print_and_bad_args_exit_2_with_one_line(tmp_path, capsys):
+    path = tmp_path / "rigs.yaml"
+    path.write_text(RIGS)
+    assert main([str(path), "--print", "rig:=replay"]) == 0
+    out = capsys.readouterr().out
+    assert "name: replay" in out and "/biotac/pac: /replay/pac" in out and "rig: replay" in out
+    assert main([str(path), "rig:=nope", "bogus:=1"]) == 2
+    assert "unknown launch argument bogus" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("how", ["option", "env"])
+def test_a_bad_graph_name_is_one_line_and_exit_2(tmp_path, capsys, monkeypatch, how):
+    path = tmp_path / "one.yaml"
+    path.write_text(ONE)
+    monkeypatch.delenv("SLIP_GRAPH_DIR", raising=False)
+    if how == "env":
+        monkeypatch.setenv("SLIP_GRAPH", "a+b")
+    assert main([str(path), *(["--graph", "a+b"] if how == "option" else [])]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "graph name 'a+b'" in err

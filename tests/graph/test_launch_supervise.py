@@ -1,0 +1,158 @@
+"""Real launches: one process test per contract of how a launch starts, hands shake and ends."""
+from __future__ import annotations
+
+import os
+import signal
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from incipient_slip.graph import discovery
+
+NODES = Path(__file__).parent / "nodes"
+EXITER, TALKER, LISTENER, STUBBORN = (NODES / f"{n}.py" for n in ("exiter", "talker", "listener", "stubborn"))
+
+
+def launch(graph, doc: str, *args):
+    path = graph.dir.parent / f"{graph.dir.name}.yaml"     # outside the graph directory
+    path.write_text(textwrap.dedent(doc))
+    return graph.spawn(["python", "-m", "incipient_slip.graph.launch", str(path), *args])
+
+
+def finish(proc, timeout=30):
+    out, err = proc.communicate(timeout=timeout)
+    return proc.returncode, out.decode(), err.decode()
+
+
+def alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+@pytest.mark.parametrize("code", [0, 3])
+def test_required_node_exit_ends_launch_with_its_code(graph, code):
+    proc = launch(graph, f"""
+        launch:
+          - node: {{exec: {EXITER}, name: bystander}}
+          - node: {{exec: {EXITER}, name: supervisor, required: true,
+                    param: [{{name: after_s, value: 0.3}}, {{name: code, value: {code}}}]}}
+    """)
+    rc, _, err = finish(proc)
+    assert rc == code
+    assert "required node supervisor" in err and f"exit code {code}" in err
+    assert os.listdir(graph.dir) == []
+
+
+def test_a_node_that_refuses_its_input_ends_the_launch_at_once_with_2_and_its_line(graph):
+    """A bad model file: the estimator (not required) exits 2; the launch must not run on."""
+    proc = launch(graph, f"""
+        launch:
+          - node: {{exec: {EXITER}, name: supervisor, required: true}}
+          - node: {{exec: {EXITER}, name: estimator, param: [{{name: after_s, value: 0.2}}, {{name: code, value: 2}}]}}
+    """)
+    rc, _, err = finish(proc)
+    assert rc == 2
+    assert err.rstrip().splitlines()[-1] == "[launch] launch ends with code 2: estimator: shutting down: time is up"
+
+
+def test_an_out_of_range_launch_arg_is_one_line_exit_2_and_starts_nothing(graph):
+    proc = launch(graph, f"""
+        launch:
+          - arg: {{name: after_s, default: "1"}}
+          - node: {{exec: {EXITER}, param: [{{name: after_s, value: "$(var after_s)"}}]}}
+    """, "after_s:=-5")
+    rc, out, err = finish(proc)
+    assert rc == 2 and out == ""
+    assert err.count("\n") == 1 and "after_s:=-5.0 must be >= 0.0" in err
+    assert os.listdir(graph.dir) == []
+
+
+def test_a_killed_required_node_ends_the_launch_and_leaves_no_files(graph, probe):
+    proc = launch(graph, f"""
+        launch:
+          - node: {{exec: {EXITER}, name: estimator, required: true}}
+          - node: {{exec: {EXITER}, name: other}}
+    """)
+    nodes = probe.nodes(["estimator", "other"], procs=[proc])
+    os.kill(nodes["estimator"].pid, signal.SIGKILL)
+    rc, _, err = finish(proc)
+    assert rc == 128 + signal.SIGKILL
+    assert "required node estimator died with signal SIGKILL" in err
+    assert not alive(nodes["other"].pid)
+    probe.close()
+    assert os.listdir(graph.dir) == []    # the SIGKILLed node's announcement and socket too
+
+
+def test_sigint_stops_every_node_and_exits_0(graph, probe):
+    proc = launch(graph, f"""
+        launch:
+          - node: {{exec: {LISTENER}}}
+          - node: {{exec: {TALKER}, param: [{{name: rate_hz, value: 200.0}}]}}
+          - node: {{exec: {EXITER}}}
+    """)
+    nodes = probe.nodes(["listener", "talker", "exiter"], procs=[proc])
+    proc.send_signal(signal.SIGINT)
+    rc, _, err = finish(proc, timeout=10)
+    assert rc == 0, err
+    assert not any(alive(i.pid) for i in nodes.values())
+
+
+def test_a_second_ctrl_c_kills_at_once_and_the_launch_says_so_with_1(graph, probe):
+    proc = launch(graph, f"""
+        launch:
+          - node: {{exec: {STUBBORN}, name: stubborn}}
+    """, "--grace", "60")
+    node = probe.nodes(["stubborn"], procs=[proc])["stubborn"]
+    proc.send_signal(signal.SIGINT)
+    probe.until(lambda: "SIGINT: shutting down" in _peek(proc), 10, what="the first SIGINT seen")
+    proc.send_signal(signal.SIGINT)
+    rc, _, err = finish(proc, timeout=10)
+    assert rc == 1 and "SIGKILL was needed for stubborn" in err
+    assert not alive(node.pid)
+
+
+def _peek(proc) -> str:
+    """stderr read so far (non-blocking), kept on the process for finish()."""
+    import fcntl
+    fd = proc.stderr.fileno()
+    fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) | os.O_NONBLOCK)
+    try:
+        chunk = proc.stderr.read() or b""
+    except BlockingIOError:
+        chunk = b""
+    proc.seen = getattr(proc, "seen", b"") + chunk
+    return proc.seen.decode(errors="replace")
+
+
+def test_non_required_node_is_respawned(graph):
+    proc = launch(graph, f"""
+        launch:
+          - node: {{exec: {EXITER}, name: flaky, respawn: true, respawn_delay: 0.1,
+                    param: [{{name: after_s, value: 0.2}}, {{name: code, value: 1}}]}}
+          - node: {{exec: {EXITER}, name: end, required: true, param: [{{name: after_s, value: 1.5}}]}}
+    """)
+    rc, _, err = finish(proc)
+    assert rc == 0
+    assert err.count("respawning flaky") >= 2
+
+
+def test_a_publisher_waits_for_its_named_reader_not_for_a_recorder_started_before(graph, probe):
+    """The lost-period-0 bug: `slip bag record` running before the launch satisfied a count of
+    one subscriber per topic, so the source started before the slow reader listened."""
+    recorder = []
+    probe.node.create_raw_subscription(lambda topic, body, t: recorder.append(topic))
+    proc = launch(graph, f"""
+        launch:
+          - node: {{exec: {TALKER}, param: [{{name: wait_readers, value: true}}, {{name: rate_hz, value: 500.0}}]}}
+          - node: {{exec: {LISTENER}, required: true,
+                    param: [{{name: start_delay_s, value: 1.0}}, {{name: count, value: 20}}]}}
+    """)
+    probe.until(lambda: proc.poll() is not None, 30, what="the launch to end")
+    rc, out, err = finish(proc)
+    assert rc == 0, err
+    assert "[listener] first seq 0" in out and "[listener] done 20 gaps 0" in out
+    assert "/biotac/pac" in recorder       # the stranger was there all along
