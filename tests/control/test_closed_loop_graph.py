@@ -13,13 +13,12 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
 
 from incipient_slip import control
-from incipient_slip.messages import PERIOD_NS, GripCommand, Heartbeat, ObjectPose, RobotState, RunEvent, SlipEstimate
+from incipient_slip.messages import PERIOD_NS, GripCommand, Heartbeat, ObjectPose, RobotState, SlipEstimate
 from incipient_slip.graph import discovery
 from incipient_slip.graph.runtime import Node
 
@@ -63,30 +62,23 @@ class FakeEstimator(Node):
             else:
                 self.estimate_pub.publish(estimate)
 
-    def spin_until(self, predicate, procs, timeout_s=30.0):
-        deadline = time.monotonic() + timeout_s
-        while not predicate():
-            for p in procs:
-                assert p.poll() is None or predicate(), f"a node exited: {p.args}\n{p.stderr.read().decode()[-2000:]}"
-            assert time.monotonic() < deadline, "timed out"
-            self.spin_once(0.02)
 
 
-def start_loop(graph, script, steps, controller_params=(), estimate_timeout_s=30.0):
+def start_loop(graph, probe, script, steps, controller_params=(), estimate_timeout_s=30.0):
     """rig_sim (mechanics scene, lock-step) + grip_controller as processes; this process plays
-    the estimator. Returns (fake estimator node, [processes])."""
+    the estimator. Returns (fake estimator node, [processes]); wait with `probe.until(...,
+    nodes=[node], procs=procs)`."""
     node = FakeEstimator(graph.dir, script)
     # a deadline no loaded machine reaches, except where the deadline is what a test is about
     ctrl = graph.spawn(["python", "-m", "incipient_slip.nodes.grip_controller", "method:=injection",
                         "wait_subscribers:=2", f"estimate_timeout_s:={estimate_timeout_s}",
                         *controller_params])
-    # the controller is connected before the rig starts: its estimate subscription is counted
-    deadline = time.monotonic() + 20
-    while not node.estimate_pub.wait_for_subscribers(1, 0.1):
-        assert ctrl.poll() is None, ctrl.stderr.read().decode()
-        assert time.monotonic() < deadline, "controller never subscribed"
+    # the controller's hello: it is subscribed to our estimates before the rig starts
+    node._readers = {SlipEstimate.TOPIC: ["grip_controller"]}
+    assert node.wait_for_readers(timeout_s=20), "the controller never subscribed to the estimates"
     # and we hear it (its heartbeat), so its first command cannot be lost
-    node.spin_until(lambda: any(h.node == "grip_controller" for h in node.heartbeats), [ctrl], 20)
+    probe.until(lambda: any(h.node == "grip_controller" for h in node.heartbeats), 20,
+                nodes=[node], procs=[ctrl], what="the controller's heartbeat")
     rig = graph.spawn(["python", "-m", "incipient_slip.nodes.rig_sim", "scene:=mechanics",
                        f"steps:={steps}", "wait_subscribers:=1", "lockstep_timeout_s:=20"])
     return node, [ctrl, rig]
@@ -122,7 +114,7 @@ def test_launch_returns_failure_code_when_the_object_slips(graph, tmp_path):
 
 
 @pytest.mark.timeout(60)
-def test_nan_and_out_of_range_estimates_are_rejected_and_the_force_held(graph):
+def test_nan_and_out_of_range_estimates_are_rejected_and_the_force_held(graph, probe):
     bad = {1: float("nan"), 2: 1.5, 3: -0.2, 4: float("inf")}
 
     def script(node, k):
@@ -133,8 +125,8 @@ def test_nan_and_out_of_range_estimates_are_rejected_and_the_force_held(graph):
                                  reason="seq gap", stamp_ns=(k + 1) * PERIOD_NS)]
         return [valid(k, 0.1 if k >= 6 else control.DEFAULT_TARGET_STICK_RATIO)]
 
-    node, procs = start_loop(graph, script, steps=8)
-    node.spin_until(lambda: len(node.commands) >= 8, procs)
+    node, procs = start_loop(graph, probe, script, steps=8)
+    probe.until(lambda: len(node.commands) >= 8, 30, nodes=[node], procs=procs)
     by_period = {c.period: c for c in node.commands}
     start = by_period[0].normal_force_kpa
     for k in (1, 2, 3, 4, 5):
@@ -145,7 +137,7 @@ def test_nan_and_out_of_range_estimates_are_rejected_and_the_force_held(graph):
 
 
 @pytest.mark.timeout(60)
-def test_random_estimates_never_push_the_force_past_the_limit_or_the_rate(graph):
+def test_random_estimates_never_push_the_force_past_the_limit_or_the_rate(graph, probe):
     rng = np.random.default_rng(7)
     values = rng.choice([np.nan, np.inf, -1.0, 2.0, 0.0, 0.0, 0.05, 1.0], size=60)
     values = np.where(rng.random(60) < 0.5, rng.random(60) * 0.2, values)   # mostly "slipping"
@@ -153,8 +145,8 @@ def test_random_estimates_never_push_the_force_past_the_limit_or_the_rate(graph)
     def script(node, k):
         return [valid(k, float(values[k]))]
 
-    node, procs = start_loop(graph, script, steps=60, controller_params=["k:=50.0"])
-    node.spin_until(lambda: len(node.commands) >= 60, procs)
+    node, procs = start_loop(graph, probe, script, steps=60, controller_params=["k:=50.0"])
+    probe.until(lambda: len(node.commands) >= 60, 30, nodes=[node], procs=procs)
     forces = [c.normal_force_kpa for c in sorted(node.commands, key=lambda c: c.period)]
     assert max(forces) <= control.SAFETY_LIMIT_KPA
     assert max(abs(np.diff(forces))) <= control.DEFAULT_MAX_STEP_KPA + 1e-9
@@ -162,7 +154,7 @@ def test_random_estimates_never_push_the_force_past_the_limit_or_the_rate(graph)
 
 
 @pytest.mark.timeout(60)
-def test_flood_of_malformed_estimates_is_dropped_counted_and_leaves_the_force(graph):
+def test_flood_of_malformed_estimates_is_dropped_counted_and_leaves_the_force(graph, probe):
     flood = [b"\x00garbage", b"\xc1", os.urandom(64), b"\x81\xa4type\xa3Bad"] * 250   # 1000 frames
 
     def script(node, k):
@@ -170,10 +162,10 @@ def test_flood_of_malformed_estimates_is_dropped_counted_and_leaves_the_force(gr
             return flood + [valid(k, control.DEFAULT_TARGET_STICK_RATIO)]
         return [valid(k, control.DEFAULT_TARGET_STICK_RATIO)]
 
-    node, procs = start_loop(graph, script, steps=6)
-    node.spin_until(lambda: len(node.commands) >= 6, procs)
-    node.spin_until(lambda: any(h.node == "grip_controller" and h.malformed_dropped >= len(flood)
-                                for h in node.heartbeats), procs, timeout_s=5)
+    node, procs = start_loop(graph, probe, script, steps=6)
+    probe.until(lambda: len(node.commands) >= 6, 30, nodes=[node], procs=procs)
+    probe.until(lambda: any(h.node == "grip_controller" and h.malformed_dropped >= len(flood)
+                            for h in node.heartbeats), 10, nodes=[node], procs=procs)
     forces = {c.normal_force_kpa for c in node.commands}
     assert forces == {control.DEFAULT_INITIAL_FORCE_KPA}
     assert not any(c.hold for c in node.commands if c.period >= 1)
@@ -181,12 +173,12 @@ def test_flood_of_malformed_estimates_is_dropped_counted_and_leaves_the_force(gr
 
 
 @pytest.mark.timeout(60)
-def test_stale_estimates_make_the_controller_hold_within_one_period(graph):
+def test_stale_estimates_make_the_controller_hold_within_one_period(graph, probe):
     def script(node, k):
         return [] if k >= 3 else [valid(k, 0.1)]   # the estimator goes silent at period 3
 
-    node, procs = start_loop(graph, script, steps=6, estimate_timeout_s=0.4)
-    node.spin_until(lambda: len(node.commands) >= 6, procs)
+    node, procs = start_loop(graph, probe, script, steps=6, estimate_timeout_s=0.4)
+    probe.until(lambda: len(node.commands) >= 6, 30, nodes=[node], procs=procs)
     by_period = {c.period: c for c in node.commands}
     for k in (3, 4, 5):
         assert by_period[k].hold and by_period[k].reason == "stale estimate"
@@ -201,58 +193,24 @@ def test_out_of_range_parameter_ends_the_launch_with_one_line_and_exit_2(graph, 
     assert not (tmp_path / "run.json").exists() and "SUCCESS" not in out
 
 
-class Watcher(Node):
-    """Records when each period starts (RobotState) and each GripCommand, by monotonic clock."""
-
-    def __init__(self, graph_dir):
-        super().__init__("watcher", graph_dir=graph_dir, heartbeat_s=0)
-        self.period_start: dict[int, float] = {}
-        self.commands: list[tuple[float, GripCommand]] = []
-        self.create_subscription(RobotState, self.on_robot)
-        self.create_subscription(GripCommand, lambda m: self.commands.append((time.monotonic(), m)))
-
-    def on_robot(self, msg):
-        self.period_start.setdefault(msg.stamp_ns // PERIOD_NS, time.monotonic())
-
-    def spin_until(self, predicate, proc, timeout_s=40.0):
-        deadline = time.monotonic() + timeout_s
-        while not predicate():
-            assert proc.poll() is None, f"launch ended early:\n{proc.stderr.read().decode()[-3000:]}"
-            assert time.monotonic() < deadline, "timed out"
-            self.spin_once(0.02)
-
-
 @pytest.mark.timeout(90)
-def test_estimator_killed_mid_run_controller_holds_within_one_period_and_run_ends_as_fault(graph, tmp_path):
+def test_estimator_killed_mid_run_ends_the_launch_at_once_naming_it_and_leaves_no_files(graph, probe, tmp_path):
+    """The estimator is required (every method but none needs it): its death ends the run.
+    (The controller's hold when estimates stop is test_stale_estimates_make_the_controller_hold_...)
+    Ordered by messages, not by wall clock: the kill comes after five answered periods."""
     from incipient_slip.models.estimator_core import default_model_path
     if not default_model_path("injection").exists():
         pytest.skip("shipped model models/injection.npz is missing (slip reproduce models)")
-    summary = tmp_path / "run.json"
-    # a high target keeps F_N low and y small, so the run is still going when the estimator dies
-    proc = graph.spawn(launch_cmd("s_d:=0.8", "k:=0.5", f"summary:={summary}"))
-    watcher = Watcher(graph.dir)
-    # five free commands after the first period start we saw: connected to the rig by then, so
-    # every later period's start reaches us (one pipe, in order)
-    watcher.spin_until(lambda: watcher.period_start and sum(
-        1 for _, c in watcher.commands if not c.hold and c.period > min(watcher.period_start)) >= 5, proc)
-    estimator = [n for n in discovery.scan(graph.dir) if n.name == "estimator"]
-    assert estimator, "no estimator announced in the graph"
-    os.kill(estimator[0].pid, signal.SIGKILL)
-    killed_at = time.monotonic()
-    watcher.spin_until(lambda: any(c.hold and t > killed_at for t, c in watcher.commands), proc, 10)
-    t_hold, hold = next((t, c) for t, c in watcher.commands if c.hold and t > killed_at)
-    assert hold.reason == "stale estimate"
-    assert t_hold - watcher.period_start[hold.period] <= 0.5          # within one period
-    last_free = max(c.normal_force_kpa for t, c in watcher.commands if t < killed_at and not c.hold)
+    estimates = probe.listen(SlipEstimate)
+    proc = graph.spawn(launch_cmd("s_d:=0.8", "k:=0.5", f"summary:={tmp_path / 'run.json'}"))
+    probe.until(lambda: len(estimates) >= 5, 60, procs=[proc], what="five estimates")
+    nodes = probe.nodes(["estimator", "rig_sim", "grip_controller", "supervisor"], procs=[proc])
+    os.kill(nodes["estimator"].pid, signal.SIGKILL)
     rc, out, err = finish(proc)
-    result = json.loads(summary.read_text())
-    assert rc == 3 and result["outcome"] == "fault", err[-2000:]
-    assert "consecutive holds" in result["detail"]
-    # never ramps once the estimates stopped: every period after the first stale hold is held
-    # (by period, not by arrival time: an estimate in flight at the kill may still be used)
-    assert all(c.hold for _, c in watcher.commands if c.period > hold.period)
-    assert all(c.normal_force_kpa <= control.SAFETY_LIMIT_KPA for _, c in watcher.commands)
-    assert last_free > 0
+    assert rc == 128 + signal.SIGKILL, err[-2000:]
+    assert "required node estimator died with signal SIGKILL" in err
+    probe.close()
+    assert os.listdir(graph.dir) == []      # every node stopped, the killed one's files removed
 
 
 @pytest.mark.timeout(60)
@@ -269,16 +227,14 @@ def test_unknown_method_is_refused_at_start(graph, tmp_path):
     assert rc == 2 and 'method:="bogus" is not one of injection' in err
 
 
-def run_lockstep_injection(graph, summary, steps):
+def run_lockstep_injection(graph, probe, summary, steps):
     """One lock-step injection run wired as stabilize.yaml wires it, as four processes started
     readers first, with an estimate deadline no loaded machine reaches (the test is about
     ordering, not about deadlines); returns the supervisor's exit code."""
     def started(name, argv):
         proc = graph.spawn(["python", "-m", f"incipient_slip.nodes.{name}", *argv])
-        deadline = time.monotonic() + 30
-        while not any(n.name == name and n.subscribes for n in discovery.scan(graph.dir)):
-            assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read().decode()
-            time.sleep(0.02)      # polling its announcement file, not waiting for a message
+        probe.until(lambda: any(n.name == name and n.subscribes for n in discovery.scan(graph.dir)),
+                    30, procs=[proc], what=f"{name} announced with its subscriptions")
         return proc
 
     supervisor = started("supervisor", [f"summary_path:={summary}", f"max_steps:={steps}", "quiet:=true",
@@ -290,14 +246,14 @@ def run_lockstep_injection(graph, summary, steps):
 
 
 @pytest.mark.timeout(150)
-def test_two_identical_lockstep_runs_write_identical_summaries(graph, tmp_path):
+def test_two_identical_lockstep_runs_write_identical_summaries(graph, probe, tmp_path):
     from incipient_slip.models.estimator_core import default_model_path
     if not default_model_path("injection").exists():
         pytest.skip("shipped model models/injection.npz is missing (slip reproduce models)")
     results = []
     for run in range(2):
         summary = tmp_path / f"run{run}.json"
-        code = run_lockstep_injection(graph, summary, steps=30)
+        code = run_lockstep_injection(graph, probe, summary, steps=30)
         assert code == 0, (code, summary.exists() and summary.read_text()[:400])
         result = json.loads(summary.read_text())
         del result["wall_s"]

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import pytest
 
-from incipient_slip.graph import discovery
 
 NODES = Path(__file__).parent / "nodes"
 EXITER, TALKER, LISTENER, STUBBORN = (NODES / f"{n}.py" for n in ("exiter", "talker", "listener", "stubborn"))

@@ -15,7 +15,7 @@ from typing import Any
 import yaml
 
 __all__ = ["ParamError", "Param", "NodeArgs", "parse_node_argv", "parse_value", "format_value", "coerce_param",
-           "merge_params"]
+           "merge_params", "check_params", "declared_params"]
 
 
 class ParamError(ValueError):
@@ -158,3 +158,25 @@ def merge_params(node: str, declared: dict[str, Any], *layers: dict[str, Any],
     for name, value in out.items():
         decls[name].check(node, name, value)
     return out
+
+
+def check_params(node: str, declared: dict[str, Any], given: dict[str, Any]) -> dict[str, Any]:
+    """The `given` values coerced and checked against their declarations (defaults are not
+    checked: they are the node's); ParamError naming the first unknown or out-of-range one.
+    The launcher calls this before it starts anything."""
+    decls = {name: as_param(d) for name, d in declared.items()}
+    out = {}
+    for name, value in given.items():
+        if name not in decls:
+            known = ", ".join(sorted(decls)) or "(none)"
+            raise ParamError(f"node {node!r} has no parameter {name!r}; known: {known}")
+        out[name] = decls[name].check(node, name, coerce_param(node, name, decls[name].default, value))
+    return out
+
+
+def declared_params(node_class: type) -> dict[str, Any]:
+    """The PARAMS of a node class and its bases (a subclass's entry wins)."""
+    declared: dict[str, Any] = {}
+    for klass in reversed(node_class.__mro__):
+        declared.update(getattr(klass, "PARAMS", {}) or {})
+    return declared

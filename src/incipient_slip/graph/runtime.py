@@ -39,7 +39,7 @@ import zmq
 from incipient_slip import messages as M
 from incipient_slip.graph import discovery
 from incipient_slip.errors import EXIT_FAILURE, EXIT_USAGE
-from incipient_slip.graph.params import ParamError, as_param, merge_params, parse_node_argv
+from incipient_slip.graph.params import ParamError, as_param, declared_params, merge_params, parse_node_argv
 
 __all__ = ["Node", "Publisher", "RawPublisher", "Subscription", "RawSubscription", "Timer",
            "run_node", "POLL_S", "LINGER_MS", "ANY_TOPIC", "READERS_ENV", "HELLO"]
@@ -218,10 +218,7 @@ class Node:
                  heartbeat_s: float = HEARTBEAT_S, context: zmq.Context | None = None,
                  readers: dict[str, list[str]] | None = None):
         self.name = node_name or name
-        defaults: dict[str, Any] = {}
-        for klass in reversed(type(self).__mro__):
-            defaults.update(getattr(klass, "PARAMS", {}) or {})
-        self.params = merge_params(self.name, defaults, params or {}, raw=raw_params)
+        self.params = merge_params(self.name, declared_params(type(self)), params or {}, raw=raw_params)
         self.remaps = dict(remaps or {})
         self.malformed = self.seq_gaps = 0
         self.exit_code = 0
@@ -660,7 +657,7 @@ def run_node(node_class: type[Node], argv: list[str] | None = None, **kwargs) ->
                 half_built.close(run_hooks=False)
             raise
         return node.spin()
-    except ParamError as exc:
+    except (ParamError, discovery.GraphNameError) as exc:
         print(f"{node_class.__name__}: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
@@ -676,9 +673,7 @@ def run_node(node_class: type[Node], argv: list[str] | None = None, **kwargs) ->
 
 
 def _usage(node_class: type[Node]) -> str:
-    defaults: dict[str, Any] = {}
-    for klass in reversed(node_class.__mro__):
-        defaults.update(getattr(klass, "PARAMS", {}) or {})
+    defaults = declared_params(node_class)
     lines = [f"usage: python -m {node_class.__module__} [name:=value ...] [/from:=/to ...] "
              f"[__name:=node_name]", "", (node_class.__doc__ or "").strip(), "", "parameters:"]
     for name, declared in defaults.items():

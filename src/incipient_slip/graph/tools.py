@@ -164,7 +164,9 @@ def _node_argv(**params) -> list[str]:
 
 
 def _graph_kwargs(args) -> dict:
-    return {"graph_dir": discovery.graph_dir(args.graph)} if getattr(args, "graph", None) else {}
+    """The graph directory of --graph / $SLIP_GRAPH_DIR / $SLIP_GRAPH, resolved here so that a bad
+    name is this command's one-line error (GraphNameError is a ValueError), not a node's."""
+    return {"graph_dir": discovery.graph_dir(getattr(args, "graph", None))}
 
 
 def _topic(text: str) -> str:

@@ -21,7 +21,7 @@ from incipient_slip import paths
 from incipient_slip.graph.launch.parse import Action, LaunchError, Marked, declared_args, parse_document
 from incipient_slip.graph.launch.substitute import Scope
 from incipient_slip.graph.launch.topology import NodeTopics, Topology, node_class
-from incipient_slip.graph.params import ParamError, format_value, merge_params
+from incipient_slip.graph.params import ParamError, check_params, declared_params, format_value
 from incipient_slip.graph.runtime import READERS_ENV
 
 __all__ = ["NodeSpec", "LaunchDescription", "find_launch_file", "load", "load_text", "NODE_PACKAGES"]
@@ -133,12 +133,10 @@ def _check_and_connect(desc: LaunchDescription) -> None:
     for spec in desc.nodes:
         klass = node_class(spec.target)
         if klass is not None:
-            declared: dict[str, Any] = {}
-            for base in reversed(klass.__mro__):
-                declared.update(getattr(base, "PARAMS", {}) or {})
+            declared = declared_params(klass)
             for name, value in spec.params.items():   # one at a time, to point at its line
                 try:
-                    merge_params(spec.name, declared, {name: value})
+                    check_params(spec.name, declared, {name: value})
                 except ParamError as exc:
                     raise LaunchError(f"{spec.param_sources.get(name, spec.source)}: {exc}") from None
         topics.append(NodeTopics.of(spec.name, klass, spec.remaps))

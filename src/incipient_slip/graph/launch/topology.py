@@ -14,7 +14,6 @@ import importlib
 import importlib.util
 import sys
 from dataclasses import dataclass, field
-from pathlib import Path
 
 from incipient_slip.graph.launch.parse import LaunchError
 from incipient_slip.graph.runtime import ANY_TOPIC, Node

@@ -1,0 +1,20 @@
+"""`slip topic`: bad graph names are one line and exit 2, before any socket exists."""
+from __future__ import annotations
+
+import pytest
+
+from incipient_slip.graph import tools
+
+
+@pytest.mark.parametrize("tool", [["list"], ["echo", "/slip/estimate"], ["hz", "/biotac/pac"]])
+@pytest.mark.parametrize("how", ["option", "env"])
+def test_a_bad_graph_name_is_one_line_and_exit_2(monkeypatch, capsys, tool, how):
+    monkeypatch.delenv("SLIP_GRAPH_DIR", raising=False)
+    argv = ["topic", *tool]
+    if how == "env":
+        monkeypatch.setenv("SLIP_GRAPH", "a+b")
+    else:
+        argv += ["--graph", "a+b"]
+    assert tools.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"slip topic {tool[0]}: error: graph name 'a+b'" in err
