@@ -14,7 +14,6 @@ import signal
 import subprocess
 import sys
 
-import numpy as np
 import pytest
 
 from incipient_slip import control
@@ -102,18 +101,6 @@ def test_launch_without_estimator_runs_to_the_end_and_exits_with_the_supervisor_
 
 
 @pytest.mark.timeout(60)
-def test_launch_returns_failure_code_when_the_object_slips(graph, tmp_path):
-    summary = tmp_path / "run.json"
-    # nylon (the lowest friction) slides under the constant no-action grip (docs/simulator.md)
-    proc = graph.spawn(launch_cmd("method:=none", "material:=nylon", "end_on_failure:=true",
-                                  f"summary:={summary}"))
-    rc, out, err = finish(proc)
-    result = json.loads(summary.read_text())
-    assert rc == 1 and result["outcome"] == "failure"
-    assert result["final_travel_mm"] > control.FAILURE_TRAVEL_MM
-
-
-@pytest.mark.timeout(60)
 def test_nan_and_out_of_range_estimates_are_rejected_and_the_force_held(graph, probe):
     bad = {1: float("nan"), 2: 1.5, 3: -0.2, 4: float("inf")}
 
@@ -134,42 +121,6 @@ def test_nan_and_out_of_range_estimates_are_rejected_and_the_force_held(graph, p
         assert by_period[k].normal_force_kpa == start
     assert "outside [0, 1]" in by_period[2].reason and "not finite" in by_period[4].reason
     assert not by_period[6].hold and by_period[6].normal_force_kpa > start   # low s raises F_N
-
-
-@pytest.mark.timeout(60)
-def test_random_estimates_never_push_the_force_past_the_limit_or_the_rate(graph, probe):
-    rng = np.random.default_rng(7)
-    values = rng.choice([np.nan, np.inf, -1.0, 2.0, 0.0, 0.0, 0.05, 1.0], size=60)
-    values = np.where(rng.random(60) < 0.5, rng.random(60) * 0.2, values)   # mostly "slipping"
-
-    def script(node, k):
-        return [valid(k, float(values[k]))]
-
-    node, procs = start_loop(graph, probe, script, steps=60, controller_params=["k:=50.0"])
-    probe.until(lambda: len(node.commands) >= 60, 30, nodes=[node], procs=procs)
-    forces = [c.normal_force_kpa for c in sorted(node.commands, key=lambda c: c.period)]
-    assert max(forces) <= control.SAFETY_LIMIT_KPA
-    assert max(abs(np.diff(forces))) <= control.DEFAULT_MAX_STEP_KPA + 1e-9
-    assert max(forces) == control.SAFETY_LIMIT_KPA     # the gain is high enough to reach it
-
-
-@pytest.mark.timeout(60)
-def test_flood_of_malformed_estimates_is_dropped_counted_and_leaves_the_force(graph, probe):
-    flood = [b"\x00garbage", b"\xc1", os.urandom(64), b"\x81\xa4type\xa3Bad"] * 250   # 1000 frames
-
-    def script(node, k):
-        if k == 2:
-            return flood + [valid(k, control.DEFAULT_TARGET_STICK_RATIO)]
-        return [valid(k, control.DEFAULT_TARGET_STICK_RATIO)]
-
-    node, procs = start_loop(graph, probe, script, steps=6)
-    probe.until(lambda: len(node.commands) >= 6, 30, nodes=[node], procs=procs)
-    probe.until(lambda: any(h.node == "grip_controller" and h.malformed_dropped >= len(flood)
-                            for h in node.heartbeats), 10, nodes=[node], procs=procs)
-    forces = {c.normal_force_kpa for c in node.commands}
-    assert forces == {control.DEFAULT_INITIAL_FORCE_KPA}
-    assert not any(c.hold for c in node.commands if c.period >= 1)
-    assert procs[0].poll() is None        # the controller survived
 
 
 @pytest.mark.timeout(60)
@@ -214,10 +165,14 @@ def test_estimator_killed_mid_run_ends_the_launch_at_once_naming_it_and_leaves_n
 
 
 @pytest.mark.timeout(60)
-def test_launch_ends_at_once_with_the_error_when_the_rig_cannot_start(graph, tmp_path):
-    proc = graph.spawn(launch_cmd("material:=wood", f"summary:={tmp_path / 'run.json'}"))
-    rc, out, err = finish(proc, timeout=30)
-    assert rc == 2 and "material" in err and "wood" in err
+def test_a_bad_model_file_ends_the_launch_at_once_with_2_and_the_estimators_line(graph, tmp_path):
+    """Used to run on for ~13 s and end as a "fault" with the cause buried in the log."""
+    bad = tmp_path / "model.npz"
+    bad.write_bytes(b"not a model")
+    proc = graph.spawn(launch_cmd(f"model:={bad}", f"summary:={tmp_path / 'run.json'}"))
+    rc, out, err = finish(proc, timeout=40)
+    last = err.rstrip().splitlines()[-1]
+    assert rc == 2 and last.startswith("[launch] launch ends with code 2: estimator:") and str(bad) in last, err[-2000:]
 
 
 @pytest.mark.timeout(60)
