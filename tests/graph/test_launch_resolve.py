@@ -182,6 +182,11 @@ def test_a_reader_without_a_writer_is_a_warning_and_replay_writes_every_topic():
     assert desc.warnings == []
     replay = next(n for n in desc.nodes if n.name == "replay")
     assert json.loads(replay.env[READERS_ENV]) == {"/biotac/pac": ["listener"]}
+    # a replay feeding a recorder: both "*", still the recorder is replay's reader
+    desc = load_text("launch:\n  - node: {pkg: graph, exec: recorder}\n"
+                     "  - node: {pkg: graph, exec: replay, param: [{name: path, value: x.mcap}]}\n")
+    replay = next(n for n in desc.nodes if n.name == "replay")
+    assert json.loads(replay.env[READERS_ENV]) == {"*": ["recorder"]}
 
 
 def test_print_shows_nodes_topics_and_handshakes(tmp_path, capsys):

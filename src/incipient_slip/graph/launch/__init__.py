@@ -63,6 +63,15 @@ def _split_cli_args(tokens: list[str]) -> dict[str, str]:
     return out
 
 
+def _printed(plain: dict) -> str:
+    """The resolved launch as YAML, each topic's writer and reader lists on one line."""
+    def dump(part: dict, flow=False) -> str:
+        return yaml.safe_dump(part, sort_keys=False, width=120, default_flow_style=None if flow else False)
+    return (dump({k: plain[k] for k in ("file", "args")})
+            + dump({"topics": plain["topics"]}, flow=True)
+            + dump({k: v for k, v in plain.items() if k not in ("file", "args", "topics")}))
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="launch", formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -88,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
             raise LaunchError(f"--grace must be >= 0 s, got {args.grace}")
         desc = load(args.file, _split_cli_args(args.args))
         if args.print_only:
-            print(yaml.safe_dump(desc.to_plain(), sort_keys=False, width=120), end="")
+            print(_printed(desc.to_plain()), end="")
             return 0
         graph_dir = discovery.graph_dir(args.graph)
     except (LaunchError, discovery.GraphNameError) as exc:

@@ -108,6 +108,10 @@ class Topology:
             readers = [r for r in self.readers_of(topic) if r != name]
             if readers:
                 out[topic] = readers
+        if ANY_TOPIC in outputs:      # what it writes is known only at run time: every reader
+            readers = [r for r in self.readers.get(ANY_TOPIC, []) if r != name]
+            if readers:
+                out[ANY_TOPIC] = readers
         return out
 
     def warnings(self) -> list[str]:
