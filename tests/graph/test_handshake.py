@@ -107,7 +107,7 @@ class LoggedSocket:
         return getattr(self.socket, name)
 
 
-def test_a_stranger_subscribed_to_everything_does_not_satisfy_a_named_reader(graph):
+def test_a_stranger_subscribed_to_everything_does_not_satisfy_a_named_reader(graph, probe):
     """The lost-period-0 bug: a recorder started before the launch met "one subscriber per
     topic", so the source started before the estimator listened."""
     with Node("recorder", heartbeat_s=0) as stranger, \
@@ -122,12 +122,8 @@ def test_a_stranger_subscribed_to_everything_does_not_satisfy_a_named_reader(gra
             estimator.create_subscription(M.BiotacPac, got.append)
             with Spinner(estimator, stranger):
                 assert rig.wait_for_readers(timeout_s=20)
-                pub.publish(pac(0))
-                deadline = threading.Event()
-                for _ in range(2000):
-                    if got:
-                        break
-                    deadline.wait(0.01)
+            pub.publish(pac(0))
+            probe.until(lambda: got, 10, nodes=[estimator], what="message 0 at the estimator")
         assert [m.seq for m in got] == [0]
 
 

@@ -14,6 +14,11 @@ A node reads like an rclpy example (see docs/design.md, "Node API"):
     def main(argv=None):
         return run_node(Talker, argv)
 
+Topics: a node declares `INPUTS`/`OUTPUTS` ({topic: message type}, before remaps); it can then
+only subscribe and publish there, and the launcher draws the graph from them. A source calls
+`self.wait_for_readers()` before its first message: it returns once every node of the launch
+that reads one of its outputs has subscribed (each node names itself with a HELLO subscription).
+
 Transport: each node has one XPUB (all its publishers) and one SUB (all its subscriptions),
 found through `discovery` (announcement files in the graph directory, no broker). Frames are
 `[topic + b"\\0", msgpack body]`; subscriptions are exact because the topic frame ends in NUL.
