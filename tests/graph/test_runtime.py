@@ -227,3 +227,12 @@ def test_a_node_that_declares_no_outputs_still_beats(graph, probe):
 
     with Quiet("quiet", heartbeat_s=0.05) as quiet:
         probe.until(lambda: any(b.node == "quiet" for b in beats), 10, nodes=[quiet])
+
+
+def test_a_script_that_never_closes_its_node_leaves_no_files(graph):
+    script = ("from incipient_slip.graph.runtime import Node\n"
+              "node = Node('careless')\n"
+              "raise SystemExit(5)\n")
+    proc = graph.spawn(["python", "-c", script])
+    assert proc.wait(timeout=30) == 5
+    assert os.listdir(graph.dir) == []

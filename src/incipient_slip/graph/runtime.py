@@ -27,6 +27,7 @@ The loop polls with at most `POLL_S` so that SIGINT/SIGTERM (which only set a fl
 """
 from __future__ import annotations
 
+import atexit
 import heapq
 import json
 import os
@@ -614,8 +615,16 @@ class Node:
 
 
 # Nodes whose sockets are open: run_node closes the one whose constructor raised (no caller holds
-# it), so its announcement and ipc socket do not stay behind.
+# it), and at interpreter exit the files of any node never closed are withdrawn, so that an
+# announcement and an ipc socket stay behind only after a SIGKILL (the launcher and the next
+# scan remove those).
 _open_nodes: "weakref.WeakSet[Node]" = weakref.WeakSet()
+
+
+@atexit.register
+def _withdraw_open_nodes() -> None:
+    for node in list(_open_nodes):
+        discovery.withdraw(node._info)
 
 
 def _readers_from_env(node: str) -> dict[str, list[str]]:
