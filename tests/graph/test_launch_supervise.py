@@ -8,6 +8,8 @@ from pathlib import Path
 
 import pytest
 
+from incipient_slip.messages import BiotacPac
+
 
 NODES = Path(__file__).parent / "nodes"
 EXITER, TALKER, LISTENER, STUBBORN = (NODES / f"{n}.py" for n in ("exiter", "talker", "listener", "stubborn"))
@@ -94,6 +96,7 @@ def test_sigint_stops_every_node_and_exits_0(graph, probe):
           - node: {{exec: {EXITER}}}
     """)
     nodes = probe.nodes(["listener", "talker", "exiter"], procs=[proc])
+    probe.ready_on([BiotacPac], procs=[proc])       # the graph is live: frames are flowing
     proc.send_signal(signal.SIGINT)
     rc, _, err = finish(proc, timeout=10)
     assert rc == 0, err
