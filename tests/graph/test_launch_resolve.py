@@ -220,3 +220,10 @@ def test_a_bad_graph_name_is_one_line_and_exit_2(tmp_path, capsys, monkeypatch, 
     assert main([str(path), *(["--graph", "a+b"] if how == "option" else [])]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "graph name 'a+b'" in err
+
+
+def test_two_types_on_one_topic_is_a_warning():
+    desc = load_text(f"launch:\n  - node: {{exec: {LISTENER}}}\n"
+                     f"  - node: {{exec: {RELAY}, remap: [{{from: /slip/estimate, to: /biotac/pac}}]}}\n")
+    assert desc.warnings == ["topic /biotac/pac is declared with 2 types: BiotacPac (listener reads, "
+                             "relay reads); SlipEstimate (relay writes)"]

@@ -122,16 +122,21 @@ class Topology:
             if self.readers.get(topic) and not self.writers_of(topic):
                 lines.append(f"topic {topic} is read by {', '.join(self.readers[topic])} but no "
                              f"node of this launch writes it")
+        declared: dict[str, dict[str, list[str]]] = {}    # topic -> type -> "node reads/writes"
         for node in self.nodes:
-            for side in ("inputs", "outputs"):
+            for side, role in (("outputs", "writes"), ("inputs", "reads")):
                 for topic, type_name in (getattr(node, side) or {}).items():
-                    expected = self.types.get(topic)
-                    if type_name != "any" and expected and type_name != expected:
-                        lines.append(f"topic {topic}: {node.name} declares {type_name}, another "
-                                     f"node {expected}")
+                    if type_name != "any":
+                        declared.setdefault(topic, {}).setdefault(type_name, []).append(
+                            f"{node.name} {role}")
+        for topic, by_type in sorted(declared.items()):
+            if len(by_type) > 1:
+                lines.append(f"topic {topic} is declared with {len(by_type)} types: " + "; ".join(
+                    f"{t} ({', '.join(who)})" for t, who in by_type.items()))
+        for node in self.nodes:
             if node.inputs is None and node.outputs is None:
                 lines.append(f"node {node.name} declares no INPUTS/OUTPUTS: its topics are not "
-                             f"shown and nobody waits for it")
+                             f"shown and no publisher waits for it")
         return lines
 
     def to_plain(self) -> list[dict]:
