@@ -33,10 +33,10 @@ e.g. a supervisor at the end of a run; 128+N when signal N killed it). Ctrl-C or
 every node (SIGTERM in reverse start order, then SIGKILL after the grace period; a second Ctrl-C
 kills at once) and exits 0, or 1 if a node had to be killed. When every node has exited by
 itself the launch exits 0, or with the first non-zero code.
-
-The package in four steps: parse (YAML -> actions with lines), substitute ($(...), conditions),
-resolve (args, groups, includes, node specs, param checks, topology), supervise (processes).
 """
+# The package in four steps: parse (YAML -> actions with lines), substitute ($(...), conditions),
+# resolve (args, groups, includes, node specs, param checks; topology: who writes and reads what),
+# supervise (processes, required/respawn, signals, exit codes). This module is the command line.
 from __future__ import annotations
 
 import argparse
