@@ -227,3 +227,30 @@ def test_two_types_on_one_topic_is_a_warning():
                      f"  - node: {{exec: {RELAY}, remap: [{{from: /slip/estimate, to: /biotac/pac}}]}}\n")
     assert desc.warnings == ["topic /biotac/pac is declared with 2 types: BiotacPac (listener reads, "
                              "relay reads); SlipEstimate (relay writes)"]
+
+
+# --- hostile substitutions -------------------------------------------------------------------
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+
+@pytest.mark.parametrize("expr,why", [("-" * 998 + "1", "nested too deeply"),
+                                      ("[1] * 999999999", "repeating"),
+                                      ("999999999 * 'x'", "repeating"),
+                                      ("__import__('os')", "not allowed"),
+                                      ("(1).real", "not allowed"),
+                                      ("1 / 0", "division by zero")])
+def test_a_hostile_eval_is_a_launch_error_naming_it(expr, why):
+    with pytest.raises(LaunchError, match=why):
+        load_text('launch:\n  - arg: {name: n, default: "$(eval ' + expr + ')"}\n', {}, "f.yaml")
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.text(alphabet="$()'\" +-*/%<>=!,.[]{}:abcdefnotrulsvi019_\\", max_size=60))
+def test_any_substitution_text_resolves_or_is_a_launch_error(text):
+    doc = "launch:\n  - arg: {name: v, default: x}\n  - arg: {name: n, default: " + \
+        '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"}\n'
+    try:
+        load_text(doc, {}, "f.yaml")
+    except LaunchError as exc:
+        assert str(exc).startswith("f.yaml")

@@ -44,8 +44,8 @@ def safe_eval(expr: str) -> Any:
             return (not v) if isinstance(n.op, ast.Not) else (-v if isinstance(n.op, ast.USub) else +v)
         if isinstance(n, ast.BinOp) and type(n.op) in _BINOPS:
             left, right = ev(n.left), ev(n.right)
-            if isinstance(left, str) and isinstance(n.op, ast.Mult):
-                raise ValueError("string repetition is not allowed")
+            if isinstance(n.op, ast.Mult) and (isinstance(left, (str, list)) or isinstance(right, (str, list))):
+                raise ValueError("repeating a string or list is not allowed")
             return _BINOPS[type(n.op)](left, right)
         if isinstance(n, ast.Compare):
             left = ev(n.left)
@@ -156,8 +156,10 @@ class Scope:
         if kind == "eval":
             try:
                 value = safe_eval(_unquote(rest))
-            except (ValueError, SyntaxError, TypeError, ZeroDivisionError) as exc:
+            except (ValueError, SyntaxError, TypeError, ZeroDivisionError, OverflowError) as exc:
                 raise self.error(line, key, f"$(eval {rest}): {exc}") from None
+            except (RecursionError, MemoryError):
+                raise self.error(line, key, f"$(eval {rest[:40]}...): nested too deeply") from None
             return str(value)
         raise self.error(line, key, f"unknown substitution $({inner}); known: var, env, eval, dirname")
 
