@@ -6,7 +6,6 @@ import signal
 import textwrap
 from pathlib import Path
 
-import pytest
 
 from incipient_slip.messages import BiotacPac
 
