@@ -6,9 +6,7 @@ import signal
 import textwrap
 from pathlib import Path
 
-
 from incipient_slip.messages import BiotacPac
-
 
 NODES = Path(__file__).parent / "nodes"
 EXITER, TALKER, LISTENER, STUBBORN = (NODES / f"{n}.py" for n in ("exiter", "talker", "listener", "stubborn"))
