@@ -44,6 +44,7 @@ import sys
 
 import yaml
 
+from incipient_slip.errors import EXIT_USAGE
 from incipient_slip.graph import discovery
 from incipient_slip.graph.launch.parse import LaunchError, parse_document
 from incipient_slip.graph.launch.resolve import LaunchDescription, NodeSpec, find_launch_file, load, load_text
@@ -102,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
         graph_dir = discovery.graph_dir(args.graph)
     except (LaunchError, discovery.GraphNameError) as exc:
         print(f"launch: error: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     return Launcher(desc, args.grace, graph_dir).run()
 
 

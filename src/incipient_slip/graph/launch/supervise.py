@@ -24,14 +24,14 @@ import threading
 import time
 from pathlib import Path
 
+from incipient_slip.errors import EXIT_FAILURE, EXIT_USAGE
 from incipient_slip.graph import discovery
 from incipient_slip.graph.launch.resolve import LaunchDescription, NodeSpec
 
-__all__ = ["Launcher", "GRACE_S", "EXIT_USAGE", "EXIT_KILLED"]
+__all__ = ["Launcher", "GRACE_S", "EXIT_KILLED"]
 
 GRACE_S = 5.0           # default: SIGTERM ... SIGKILL budget for the whole graph
-EXIT_USAGE = 2          # a node's "bad input" code, and the launch's
-EXIT_KILLED = 1         # a stop that needed SIGKILL
+EXIT_KILLED = EXIT_FAILURE   # a stop that needed SIGKILL
 TICK_S = 0.05           # supervision tick: node exits are found by polling
 
 
