@@ -85,7 +85,7 @@ def test_a_killed_required_node_ends_the_launch_and_leaves_no_files(graph, probe
     assert os.listdir(graph.dir) == []    # the SIGKILLed node's announcement and socket too
 
 
-def test_sigint_stops_every_node_and_exits_0(graph, probe):
+def test_sigint_stops_every_node_and_exits_130(graph, probe):
     proc = launch(graph, f"""
         launch:
           - node: {{exec: {LISTENER}}}
@@ -96,7 +96,7 @@ def test_sigint_stops_every_node_and_exits_0(graph, probe):
     probe.ready_on([BiotacPac], procs=[proc])       # the graph is live: frames are flowing
     proc.send_signal(signal.SIGINT)
     rc, _, err = finish(proc, timeout=10)
-    assert rc == 0, err
+    assert rc == 128 + signal.SIGINT, err
     assert not any(alive(i.pid) for i in nodes.values())
 
 
@@ -136,7 +136,7 @@ def test_non_required_node_is_respawned(graph, probe):
     probe.until(lambda: _peek(proc).count("respawning flaky") >= 2, 60, what="two respawns")
     proc.send_signal(signal.SIGINT)
     rc, _, err = finish(proc)
-    assert rc == 0, err
+    assert rc == 128 + signal.SIGINT, err
     assert "flaky exited with exit code 1; respawning in 0.1 s" in proc.seen.decode()
 
 

@@ -31,7 +31,7 @@ How a launch ends: a node that exits 2 (bad input) ends it at once with 2, its l
 repeated. A required node that exits ends it with that node's code (0 when it finished cleanly,
 e.g. a supervisor at the end of a run; 128+N when signal N killed it). Ctrl-C or SIGTERM stops
 every node (SIGTERM in reverse start order, then SIGKILL after the grace period; a second Ctrl-C
-kills at once) and exits 0, or 1 if a node had to be killed. When every node has exited by
+kills at once) and exits 130 (143 for SIGTERM), or 1 if a node had to be killed. When every node has exited by
 itself the launch exits 0, or with the first non-zero code.
 """
 # The package in four steps: parse (YAML -> actions with lines), substitute ($(...), conditions),

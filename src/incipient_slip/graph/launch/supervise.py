@@ -10,8 +10,9 @@ Exit codes of a launch (docs/graph.md):
     once and the launch exits 2 with that node's last line repeated (restarting cannot help);
   * a required node exits: the others are stopped; the launch exits with its code (128+N for
     signal N);
-  * Ctrl-C / SIGTERM: the nodes are stopped; 0, or 1 if any node had to be SIGKILLed (at the
-    grace deadline, or at once by a second Ctrl-C);
+  * Ctrl-C / SIGTERM: the nodes are stopped; 128 + the signal (130 for Ctrl-C, 143 for
+    SIGTERM, as a shell reports it), or 1 if any node had to be SIGKILLed (at the grace
+    deadline, or at once by a second Ctrl-C);
   * every node exited by itself: 0, or the first non-zero code.
 """
 from __future__ import annotations
@@ -123,7 +124,8 @@ class Launcher:
 
     def _on_signal(self, signum, frame) -> None:
         self._signals += 1
-        self._signal = signum
+        if self._signal is None:
+            self._signal = signum
         if self._signals >= 2:       # a second Ctrl-C: stop waiting, kill everything now
             for proc in self.procs:
                 if proc.popen is not None and proc.popen.poll() is None:
@@ -158,7 +160,7 @@ class Launcher:
                     self.say(f"launch ends with code {EXIT_KILLED}: SIGKILL was needed for "
                              f"{', '.join(sorted(self._killed))}")
                     return EXIT_KILLED
-                return 0
+                return 128 + self._signal     # as a shell reports it: 130 for Ctrl-C
             now = time.monotonic()
             alive = 0
             for proc in self.procs:
