@@ -172,7 +172,8 @@ def test_a_bad_model_file_ends_the_launch_at_once_with_2_and_the_estimators_line
     proc = graph.spawn(launch_cmd(f"model:={bad}", f"summary:={tmp_path / 'run.json'}"))
     rc, out, err = finish(proc, timeout=40)
     last = err.rstrip().splitlines()[-1]
-    assert rc == 2 and last.startswith("[launch] launch ends with code 2: estimator:") and str(bad) in last, err[-2000:]
+    assert rc == 2 and last.startswith("[launch] launch ends with code 2: required node estimator") \
+        and str(bad) in last, err[-2000:]
 
 
 @pytest.mark.timeout(60)

@@ -45,16 +45,21 @@ def test_required_node_exit_ends_launch_with_its_code(graph):
     assert os.listdir(graph.dir) == []
 
 
-def test_a_node_that_refuses_its_input_ends_the_launch_at_once_with_2_and_its_line(graph):
-    """A bad model file: the estimator (not required) exits 2; the launch must not run on."""
+def test_a_required_node_that_refuses_its_input_ends_the_launch_with_2_and_its_line_last(graph):
+    """A bad model file: the estimator exits 2; the launch must not run on, nor bury the cause."""
     proc = launch(graph, f"""
         launch:
           - node: {{exec: {EXITER}, name: supervisor, required: true}}
-          - node: {{exec: {EXITER}, name: estimator, param: [{{name: after_s, value: 0.2}}, {{name: code, value: 2}}]}}
+          - node: {{exec: {EXITER}, name: estimator, required: true,
+                    param: [{{name: after_s, value: 0.2}}, {{name: code, value: 2}}]}}
+          - node: {{exec: {EXITER}, name: reader, respawn: true,
+                    param: [{{name: after_s, value: 0.1}}, {{name: code, value: 2}}]}}
     """)
     rc, _, err = finish(proc)
     assert rc == 2
-    assert err.rstrip().splitlines()[-1] == "[launch] launch ends with code 2: estimator: shutting down: time is up"
+    assert err.rstrip().splitlines()[-1] == ("[launch] launch ends with code 2: required node estimator "
+                                             "exit code 2: shutting down: time is up")
+    assert "respawning reader" not in err     # exit 2 is not retried
 
 
 def test_an_out_of_range_launch_arg_is_one_line_exit_2_and_starts_nothing(graph):

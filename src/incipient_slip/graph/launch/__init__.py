@@ -27,9 +27,9 @@ value: exit 2, one line naming it) and the topics are drawn from the nodes' INPU
 (`--print` lists each topic's writers and readers; a topic read but not written is a warning).
 Each publisher is told the readers of its outputs and waits for them by name at start-up.
 
-How a launch ends: a node that exits 2 (bad input) ends it at once with 2, its last line
-repeated. A required node that exits ends it with that node's code (0 when it finished cleanly,
-e.g. a supervisor at the end of a run; 128+N when signal N killed it). Ctrl-C or SIGTERM stops
+How a launch ends: a required node that exits ends it with that node's code (0 when it finished
+cleanly, e.g. a supervisor at the end of a run; 2 when it refused its input, a param or a file;
+128+N when signal N killed it), its last line repeated last. A node that exits 2 is not respawned. Ctrl-C or SIGTERM stops
 every node (SIGTERM in reverse start order, then SIGKILL after the grace period; a second Ctrl-C
 kills at once) and exits 130 (143 for SIGTERM), or 1 if a node had to be killed. When every node has exited by
 itself the launch exits 0, or with the first non-zero code.

@@ -6,10 +6,9 @@ SIGTERM). Output lines are prefixed `[name]`. When a node process ends, the laun
 the discovery file and ipc socket it may have left (a SIGKILLed node cannot).
 
 Exit codes of a launch (docs/graph.md):
-  * a node exits 2 (bad input: a parameter, a file), required or not: the others are stopped at
-    once and the launch exits 2 with that node's last line repeated (restarting cannot help);
   * a required node exits: the others are stopped; the launch exits with its code (128+N for
-    signal N);
+    signal N; 2 for bad input: a parameter, a model file), its last line repeated last;
+  * a node that exits 2 is not respawned (restarting cannot fix its input);
   * Ctrl-C / SIGTERM: the nodes are stopped; 128 + the signal (130 for Ctrl-C, 143 for
     SIGTERM, as a shell reports it), or 1 if any node had to be SIGKILLed (at the grace
     deadline, or at once by a second Ctrl-C);
@@ -180,13 +179,7 @@ class Launcher:
                     continue
                 self._ended(proc, rc)
                 spec = proc.spec
-                if rc == EXIT_USAGE:
-                    self.say(f"{spec.name} refused its input (exit code {EXIT_USAGE}); shutting down the graph")
-                    self._shutdown()
-                    self.say(f"launch ends with code {EXIT_USAGE}: {spec.name}: "
-                             f"{proc.last_err.decode(errors='replace').strip()}")
-                    return EXIT_USAGE
-                if spec.respawn:
+                if spec.respawn and rc != EXIT_USAGE:
                     self.say(f"{spec.name} exited with {describe(rc)}; respawning in {spec.respawn_delay:g} s")
                     proc.respawn_at = now + spec.respawn_delay
                     alive += 1
@@ -196,9 +189,10 @@ class Launcher:
                     verb = "finished" if rc == 0 else ("died" if rc < 0 else "exited")
                     self.say(f"required node {spec.name} {verb} with {describe(rc)}; shutting down the graph")
                     self._shutdown()
-                    if rc != 0:
+                    if rc != 0:     # the cause last, where it is seen: the node's own last line
+                        last = proc.last_err.decode(errors="replace").strip()
                         self.say(f"launch ends with code {exit_code(rc)}: required node {spec.name} "
-                                 f"{describe(rc)}")
+                                 f"{describe(rc)}" + (f": {last}" if last else ""))
                     return exit_code(rc)
                 else:
                     self.say(f"{spec.name} exited with {describe(rc)}")
