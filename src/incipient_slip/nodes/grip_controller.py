@@ -34,7 +34,7 @@ class GripController(Node):
         "min_force_kpa": Param(control.DEFAULT_MIN_FORCE_KPA, **FORCE, help="lowest commanded F_N"),
         "max_force_kpa": Param(control.SAFETY_LIMIT_KPA, **FORCE, help="highest commanded F_N"),
         "estimate_timeout_s": Param(0.4, lo=1e-3, help="hold when no estimate this long after the tick (s)"),
-        "wait_subscribers": Param(1, lo=0, help="readers of /grip/command to wait for before the first command"),
+        "wait_subscribers": Param(1, lo=0, help="started by hand: readers of /grip/command to wait for"),
         "wait_timeout_s": Param(10.0, lo=0.0, help="longest wait for them (s)"),
     }
 
@@ -61,7 +61,9 @@ class GripController(Node):
                       f"{self.core.refused_ticks} ticks refused so far)", throttle_s=1.0)
         if answers and not self.readers_ready:   # once: period 0's answer must not be lost
             self.readers_ready = True
-            if not self.command_pub.wait_for_subscribers(self.param("wait_subscribers"), self.param("wait_timeout_s")):
+            if self.readers:                     # the launch names them
+                self.wait_for_readers(self.param("wait_timeout_s"))
+            elif not self.command_pub.wait_for_subscribers(self.param("wait_subscribers"), self.param("wait_timeout_s")):
                 self.warn(f"too few readers of {self.command_pub.topic}; sending anyway")
         for a in answers:
             self.command_pub.publish(GripCommand(normal_force_kpa=a.normal_force_kpa, hold=a.hold,

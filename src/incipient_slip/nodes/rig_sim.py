@@ -20,10 +20,10 @@ command; `hold=True` keeps the current force); `collection` redraws F_N each per
 a data set is `sim.rig.series_seed(dataset_seed, i)`). `/pzt/command` switches the injection
 from the next period on; `injection_db` (default: the scene's) sets it at the start.
 
-Before period 0 it waits until each topic of `wait_topics` (default: every topic it publishes)
-has `wait_subscribers` subscribers (XPUB handshake; after `wait_timeout_s` it warns and starts).
-A launch that leaves a topic unread (e.g. /biotac/slow with an injection estimator and no
-recorder) lists the topics its nodes read, or the rig waits the whole timeout for nobody.
+Before period 0 it waits for the readers of its topics that the launch names
+(`Node.wait_for_readers`, from the nodes' declared INPUTS); started by hand (no launch), until
+each topic of `wait_topics` (default: all it publishes) has `wait_subscribers` subscribers. After
+`wait_timeout_s` it warns and starts.
 
 `lockstep: true`: it starts period k+1 only when `GripCommand(period=k)` has arrived (in
 `collection` the command is only the go-ahead, its force is not used). No command within
@@ -89,7 +89,7 @@ class RigSim(Node):
         "lockstep": Param(True, help="true: start period k+1 when GripCommand(period=k) arrives"),
         "lockstep_timeout_s": Param(30.0, lo=0.0, help="lock-step: fault when no command this long (s); 0 waits forever"),
         "realtime_factor": Param(1.0, lo=1e-3, help="real time: sim seconds per wall second"),
-        "wait_subscribers": Param(1, lo=0, help="readers per topic to wait for before period 0"),
+        "wait_subscribers": Param(1, lo=0, help="started by hand: readers per topic to wait for before period 0"),
         "wait_topics": Param([], help="[] = every topic it publishes"),
         "wait_timeout_s": Param(10.0, lo=0.0, help="longest wait for them (s)"),
         "exit_when_done": Param(False, help="exit 0 after the last period"),
@@ -162,8 +162,12 @@ class RigSim(Node):
         return super().spin()
 
     def wait_for_subscribers(self) -> None:
-        """Before period 0: `wait_subscribers` readers on each topic of `wait_topics`."""
+        """Before period 0: the launch's readers of its topics (or, started by hand,
+        `wait_subscribers` per topic of `wait_topics`) are subscribed, so nothing is lost."""
         n, timeout = self.param("wait_subscribers"), self.param("wait_timeout_s")
+        if self.readers:
+            self.wait_for_readers(timeout)
+            return
         if n <= 0:
             return
         deadline = time.monotonic() + timeout
