@@ -89,7 +89,11 @@ def valid(k, s):
 
 
 @pytest.mark.timeout(60)
-def test_launch_without_estimator_runs_to_the_end_and_exits_with_the_supervisor_code(graph, tmp_path):
+def test_launch_without_estimator_runs_to_the_end_and_exits_with_the_supervisor_code(graph, probe, tmp_path):
+    """Also the lost-period-0 regression: a recorder of every topic already in the graph (like a
+    `slip bag record` started first) must not stand in for the launch's own readers."""
+    probe.node.create_raw_subscription(lambda topic, body, recv_ns: None)
+    probe.node.spin_once(0)
     summary = tmp_path / "run.json"
     proc = graph.spawn(launch_cmd("method:=none", "steps:=40", f"summary:={summary}"))
     rc, out, err = finish(proc)

@@ -1,12 +1,15 @@
 """stabilize.yaml and collect.yaml as the launcher resolves them (one document in, one tree out)."""
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 
 import pytest
 
 from incipient_slip.graph.launch import LaunchError, find_launch_file, load
+from incipient_slip.graph.launch import main as launch_main
+from incipient_slip.graph.runtime import READERS_ENV
 
 
 def nodes(desc):
@@ -18,8 +21,11 @@ def test_stabilize_defaults_are_one_simulated_lockstep_injection_run():
     got = nodes(desc)
     assert set(got) == {"rig_sim", "estimator", "grip_controller", "supervisor"}
     assert got["rig_sim"].params["scene"] == "paper" and got["rig_sim"].params["lockstep"] is True
-    assert got["grip_controller"].params == {"method": "injection", "s_d": 0.3, "k": 2.0,
-                                             "wait_subscribers": 2}
+    assert got["grip_controller"].params == {"method": "injection", "s_d": 0.3, "k": 2.0}
+    # no subscriber counts: each publisher waits for the readers the topology names
+    readers = json.loads(got["rig_sim"].env[READERS_ENV])
+    assert readers["/biotac/pac"] == ["estimator"] and readers["/actuator/state"] == ["grip_controller"]
+    assert sorted(json.loads(got["grip_controller"].env[READERS_ENV])["/grip/command"]) == ["rig_sim", "supervisor"]
     # every node the method needs ends the launch if it dies or refuses its input
     assert all(node.required for node in got.values())
     assert got["supervisor"].params["end_on_failure"] is True
@@ -59,3 +65,15 @@ def test_collect_records_the_collection_protocol():
     assert got["rig_sim"].params["protocol"] == "collection" and got["rig_sim"].required
     assert got["rig_sim"].params["scene"] == "no_injection" and got["rig_sim"].params["seed"] == 3
     assert "recorder" in got
+
+
+@pytest.mark.parametrize("arg,node,name", [("s_d:=2", "grip_controller", "s_d"),
+                                           ("k:=-1", "grip_controller", "k"),
+                                           ("k:=.inf", "grip_controller", "k"),
+                                           ("steps:=-5", "rig_sim", "steps")])
+def test_an_out_of_range_launch_arg_is_one_line_and_exit_2_before_anything_starts(arg, node, name, capsys):
+    """Used to be a traceback and exit 1 (s_d, k) or a "SUCCESS" (steps:=-5). The check runs
+    when the file is resolved, the same for `--print` as for a launch."""
+    assert launch_main(["stabilize.yaml", arg, "--print"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"node '{node}': parameter {name}:=" in err
