@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench bench-graph bench-bag bench-sim bench-estimator bench-loop clean
+.PHONY: demo test test-slow bench bench-graph bench-bag bench-sim bench-estimator bench-loop clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -21,8 +21,12 @@ demo: $(STAMP)
 	  echo "demo: the graph ran; the run ended on the paper's failure condition, as the simulated rig predicts at its fitted point (docs/validation.md)"; \
 	  exit 0; fi; exit $$code
 
+# make test: everything but the tests marked slow (tens of seconds each); make test-slow: those.
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -m "not slow"
+
+test-slow: $(STAMP)
+	$(BIN)/python -m pytest -q -m slow
 
 clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis
