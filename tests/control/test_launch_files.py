@@ -2,12 +2,10 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import pytest
 
-from incipient_slip.graph.launch import LaunchError, find_launch_file, load
+from incipient_slip.graph.launch import find_launch_file, load
 from incipient_slip.graph.launch import main as launch_main
 from incipient_slip.graph.runtime import READERS_ENV
 

@@ -1,12 +1,10 @@
 """The stepping API: shapes, dtypes, effects on/off, determinism per seed."""
-import dataclasses
 
 import numpy as np
 import pytest
 from scipy import signal
 
 from incipient_slip.sim import Rig, load_scene, series_seed
-from incipient_slip.sim.scene import scene_from_dict
 from incipient_slip.sim.sos import sosfilt_state
 
 

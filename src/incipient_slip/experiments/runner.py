@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from incipient_slip import control
+from incipient_slip.graph.launch.supervise import child_setup
 
 NODE_MODULES = ("rig_sim", "estimator", "grip_controller", "supervisor")
 RUN_TIMEOUT_S = 180.0
@@ -73,15 +74,6 @@ class _Graph:
     started: float = 0.0
     rc: int | None = None
     log: object = None
-
-
-def _child_setup() -> None:
-    os.setpgid(0, 0)
-    try:
-        import ctypes
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)   # PR_SET_PDEATHSIG
-    except Exception:
-        pass
 
 
 class GraphRunner:
@@ -159,7 +151,7 @@ class GraphRunner:
             return pid
         rc = 1
         try:                                   # the child: become the node, never return
-            _child_setup()
+            child_setup()
             for s in (signal.SIGINT, signal.SIGTERM, signal.SIGCHLD):
                 signal.signal(s, signal.SIG_DFL)
             os.dup2(log_fd, 1)

@@ -16,7 +16,6 @@ settings to check, a NatNet version change is an alarm. With no server info with
 """
 from __future__ import annotations
 
-import math
 import socket
 import time
 

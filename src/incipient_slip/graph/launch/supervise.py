@@ -50,7 +50,8 @@ def exit_code(rc: int) -> int:
     return 128 - rc if rc < 0 else rc
 
 
-def _child_setup() -> None:
+def child_setup() -> None:
+    """In a node's child process: its own process group, and SIGTERM when its parent dies."""
     os.setpgid(0, 0)
     try:
         import ctypes
@@ -105,7 +106,7 @@ class Launcher:
                    **{discovery.GRAPH_DIR_ENV: str(self.graph_dir)}, **proc.spec.env)
         proc.popen = subprocess.Popen(proc.spec.argv(), stdin=subprocess.DEVNULL,
                                       stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
-                                      preexec_fn=_child_setup)
+                                      preexec_fn=child_setup)
         proc.rc, proc.respawn_at, proc.last_err = None, None, b""
         prefix = f"[{proc.spec.name}] ".encode()
         proc.threads = [threading.Thread(target=self._pump, args=(proc, pipe, stream, prefix), daemon=True)
