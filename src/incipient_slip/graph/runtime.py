@@ -688,12 +688,18 @@ def run_node(node_class: type[Node], argv: list[str] | None = None, **kwargs) ->
 
 def _usage(node_class: type[Node]) -> str:
     defaults = declared_params(node_class)
-    lines = [f"usage: python -m {node_class.__module__} [name:=value ...] [/from:=/to ...] "
+    module = node_class.__module__
+    if module == "__main__":     # run as `python -m pkg.node`: name the module, not __main__
+        spec = getattr(sys.modules["__main__"], "__spec__", None)
+        module = spec.name if spec is not None else module
+    lines = [f"usage: python -m {module} [name:=value ...] [/from:=/to ...] "
              f"[__name:=node_name]", "", (node_class.__doc__ or "").strip(), "", "parameters:"]
     for name, declared in defaults.items():
         d = as_param(declared)
         bounds = (f" one of {', '.join(map(str, d.choices))}" if d.choices is not None else
-                  f" in [{d.lo}, {d.hi}]" if d.lo is not None or d.hi is not None else "")
+                  f" in [{d.lo}, {d.hi}]" if d.lo is not None and d.hi is not None else
+                  f" >= {d.lo}" if d.lo is not None else
+                  f" <= {d.hi}" if d.hi is not None else "")
         lines.append(f"  {name} = {d.default!r}{bounds}" + (f"  {d.help}" if d.help else ""))
     if not defaults:
         lines.append("  (none)")
