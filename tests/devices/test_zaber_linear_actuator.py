@@ -11,7 +11,7 @@ import serial
 
 from incipient_slip.devices.zaber_emulator import ZaberEmulator
 from incipient_slip.graph.runtime import Node
-from incipient_slip.messages import ActuatorState, GripCommand
+from incipient_slip.messages import ActuatorState, BiotacStatus, GripCommand
 from incipient_slip.nodes.linear_actuator import LinearActuator, step_target_mm
 
 pytestmark = pytest.mark.timeout(60)
@@ -28,6 +28,7 @@ class Probe(Node):
         self.states: list[ActuatorState] = []
         self.create_subscription(ActuatorState, self.states.append)
         self.grip = self.create_publisher(GripCommand)
+        self.biotac = self.create_publisher(BiotacStatus)
 
 
 def run(nodes, predicate, timeout_s=20.0):
@@ -129,3 +130,17 @@ def test_without_readers_it_starts_after_the_wait_timeout(rig):
     emulator, node, probe = rig(wait_subscribers=5, wait_timeout_s=0.2)
     run((node, probe), lambda: node.done)
     assert node.k == 5
+
+
+def test_wait_tare_holds_step_0_until_the_biotac_reader_is_tared(rig):
+    """No period on an untared P_DC: a status still collecting does not start it, 'done' does."""
+    emulator, node, probe = rig(wait_tare=True, wait_timeout_s=60.0)
+    run((node, probe), lambda: probe.biotac.subscriber_count() >= 1)
+    probe.biotac.publish(BiotacStatus(tare_state="collecting"))
+    for _ in range(100):                              # 0.2 s: four periods of 50 ms
+        node.spin_once(0.002)
+        probe.spin_once(0.0)
+    assert node.k == 0 and probe.states == []
+    probe.biotac.publish(BiotacStatus(tare_state="done"))
+    run((node, probe), lambda: len(probe.states) == 5)
+    assert [s.step_index for s in probe.states] == [0, 1, 2, 3, 4]

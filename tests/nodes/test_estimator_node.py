@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from incipient_slip.messages import encode, BiotacPac, BiotacSlow, Heartbeat, PztState, SlipEstimate
+from incipient_slip.messages import encode, ActuatorState, BiotacPac, BiotacSlow, Heartbeat, PztState, SlipEstimate
 from incipient_slip.models.features import feature_spec, phi
 from incipient_slip.models.modelfile import Model, save_model
 from incipient_slip.nodes.rig_sim import pac_frame_stamps_ns, slow_frame_stamps_ns
@@ -38,6 +38,7 @@ class FakeBiotac(Node):
         self.slow = self.create_publisher(BiotacSlow)
         self.pzt = self.create_publisher(PztState)
         self.raw = self.create_raw_publisher(BiotacPac.TOPIC)
+        self.tick = self.create_publisher(ActuatorState)
         self.estimates: list[SlipEstimate] = []
         self.heartbeats: list[Heartbeat] = []
         self.create_subscription(SlipEstimate, self.estimates.append)
@@ -228,3 +229,27 @@ def test_source_clock_restart_or_jump_resynchronizes_the_periods(estimator):
     later = node.estimates[6:]
     assert [e.period for e in later] == [199, 200, 201]
     assert [e.valid for e in later] == [False, False, True] and later[0].reason == "stale"
+
+
+def test_period_origin_tick_cuts_host_time_stamps_at_the_actuators_ticks(estimator):
+    """Device clocks (host time): frames before the first tick wait, period k ends at tick k, and
+    the estimates equal those of the same stream stamped from 0 (the simulated rig's clock)."""
+    node, proc, model = estimator(period_origin="tick")
+    host = 1_795_000_000_123_456_789                 # an arbitrary host time_ns of period 0's start
+    stream = pac_stream(4.0)
+    node.send_pac(stream, range(0, 120), stamp_of=lambda j: host + int(pac_frame_stamps_ns(j // 50)[j % 50]))
+    deadline = time.monotonic() + 20
+    while not node.tick.wait_for_subscribers(1, 0.1):
+        assert time.monotonic() < deadline, "estimator never subscribed to the tick"
+    for _ in range(25):
+        node.spin_once(0.01)
+    assert node.estimates == []                      # no period before the origin is known
+    node.tick.publish(ActuatorState(step_index=0, stamp_ns=host + PERIOD_NS))
+    node.send_pac(stream, range(120, 400), stamp_of=lambda j: host + int(pac_frame_stamps_ns(j // 50)[j % 50]))
+    node.spin_until(lambda: len(node.estimates) >= 7)
+    est = node.estimates
+    assert [e.period for e in est] == list(range(len(est)))
+    assert [e.window_end_ns for e in est] == [(k + 1) * PERIOD_NS for k in range(len(est))]
+    assert [e.stamp_ns for e in est] == [host + (k + 1) * PERIOD_NS for k in range(len(est))]
+    for e in est[1:]:
+        assert e.valid and e.stick_ratio == pytest.approx(expected_ratio(model, stream, e.period), abs=1e-9)

@@ -46,3 +46,12 @@ def test_every_service_command_runs_outside_docker(tmp_path):
         for arg in command[3:]:
             param = re.match(r"(\w+):=", arg).group(1)
             assert param in result.stdout + result.stderr, f"{name}: unknown param {param}"
+
+
+def test_the_default_demo_is_the_closed_loop_one_container_per_node():
+    """Without a profile, compose starts the rig, the estimator, the grip controller and the
+    supervisor (whose exit ends the demo), each its own service with one node module."""
+    default = {name: s for name, s in compose()["services"].items() if not s.get("profiles")}
+    modules = {s["command"][2].rsplit(".", 1)[1] for s in default.values()}
+    assert modules == {"rig_sim", "estimator", "grip_controller", "supervisor"}
+    assert len(modules) == len(default)

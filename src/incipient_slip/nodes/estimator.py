@@ -6,14 +6,22 @@ Loads `model` (default `models/<method>.npz`; its feature spec must fit the stre
 window is `window_s`) and reads `/biotac/pac` (vibration methods) or `/biotac/slow` (electrode
 methods). The scheduling by stamps, validity after seq gaps and stale streams, and the
 wall-clock watchdog are `models.estimator_core.PeriodEstimator`; this node wires it.
+
+`period_origin: tick` (device clocks, rig:=emulated and hardware): the sensor's stamps are host
+time, so period k is not stamp // T. Period k then ends at the stamp of the actuator's tick for
+step k (`control.PeriodOrigin`): the core sees stamps relative to the first tick's origin;
+frames before that tick wait (at most `origin_buffer_s`) and are then replayed, those before the
+origin dropped and counted. Estimates are stamped on the host clock.
+`period_origin: stamps` (default; the simulated rig's stamps start at 0) uses the stamps as they are.
 """
 from __future__ import annotations
 
 import time
 
+from incipient_slip.control import PERIOD_ORIGINS, PeriodOrigin
 from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
-from incipient_slip.messages import PERIOD_NS, BiotacPac, BiotacSlow, PztState, SlipEstimate
+from incipient_slip.messages import PAC_SAMPLES_PER_FRAME, PERIOD_NS, ActuatorState, BiotacPac, BiotacSlow, PztState, SlipEstimate
 from incipient_slip.models.estimator_core import (
     ModelFileError, PeriodEstimator, default_model_path, load_model,
 )
@@ -23,7 +31,8 @@ from incipient_slip.models.features import METHODS
 class Estimator(Node):
     """Buffers the sensor stream and publishes one SlipEstimate per period (by stamps)."""
 
-    INPUTS = {BiotacPac.TOPIC: BiotacPac, BiotacSlow.TOPIC: BiotacSlow, PztState.TOPIC: PztState}
+    INPUTS = {BiotacPac.TOPIC: BiotacPac, BiotacSlow.TOPIC: BiotacSlow, PztState.TOPIC: PztState,
+              ActuatorState.TOPIC: ActuatorState}
     OUTPUTS = {SlipEstimate.TOPIC: SlipEstimate}
     PARAMS = {
         "method": Param("injection", choices=METHODS, help="estimation method"),
@@ -31,6 +40,9 @@ class Estimator(Node):
         "window_s": Param(0.0, lo=0.0, help="0: the model's window; otherwise must equal it (s)"),
         "stale_after_s": Param(0.05, lo=0.0, help="newest sample older than this before a boundary: stale (s)"),
         "wall_timeout_s": Param(2.0, lo=0.0, help="no frame for this long (wall clock): stale; 0 = off (s)"),
+        "period_origin": Param("stamps", choices=PERIOD_ORIGINS,
+                               help="stamps: period k ends at stamp (k+1) T; tick: at the actuator's tick k (device clocks)"),
+        "origin_buffer_s": Param(2.0, lo=0.0, hi=60.0, help="frames kept until the first tick (period_origin tick), s"),
     }
 
     def __init__(self, **kwargs):
@@ -47,14 +59,32 @@ class Estimator(Node):
         self.frames = self.create_subscription(BiotacPac if pac else BiotacSlow, self.on_frame,
                                                on_gap=lambda last, seq: self.core.gap())
         self.create_subscription(PztState, self.on_pzt)
+        frames_per_s = model.spec.rate_hz / (PAC_SAMPLES_PER_FRAME if pac else 1)
+        self.origin = PeriodOrigin(self.param("period_origin"), round(self.param("origin_buffer_s") * frames_per_s))
+        if self.origin.origin_ns is None:
+            self.create_subscription(ActuatorState, self.on_tick)
         self.estimate_pub = self.create_publisher(SlipEstimate)
         if self.param("wall_timeout_s") > 0:
             self.create_timer(min(0.1, self.param("wall_timeout_s") / 4), self.watchdog)
         self.on_shutdown(self.report)
         self.log(f"method {model.spec.method}, model {path}, window {model.spec.window_s} s, stream {self.frames.topic}")
 
+    def on_tick(self, msg: ActuatorState) -> None:
+        if self.origin.origin_ns is None:
+            held = self.origin.tick(msg.step_index, msg.stamp_ns)
+            self.log(f"period {msg.step_index} ends at the actuator's tick; {len(held)} frames held")
+            for frame in held:
+                self.on_frame(frame)
+
     def on_frame(self, msg) -> None:
-        estimates, warning = self.core.frame(msg.stamp_ns, msg.seq, self.counts_of(msg), time.monotonic())
+        if self.origin.hold(msg):           # period_origin tick: no period before the first tick
+            return
+        stamp_ns = self.origin.relative(msg.stamp_ns)
+        if stamp_ns is None:
+            self.warn(f"dropped frame seq {msg.seq}: stamped before period 0 "
+                      f"(#{self.origin.before_origin})", throttle_s=1.0, key="origin")
+            return
+        estimates, warning = self.core.frame(stamp_ns, msg.seq, self.counts_of(msg), time.monotonic())
         if warning:
             self.warn(warning, throttle_s=1.0)
         self.publish(estimates)
@@ -73,7 +103,8 @@ class Estimator(Node):
         for e in estimates:
             self.estimate_pub.publish(SlipEstimate(
                 stick_ratio=e.stick_ratio, valid=e.valid, method=self.core.method, period=e.period,
-                window_end_ns=e.window_end_ns, latency_ns=e.latency_ns, reason=e.reason, stamp_ns=e.window_end_ns))
+                window_end_ns=e.window_end_ns, latency_ns=e.latency_ns, reason=e.reason,
+                stamp_ns=e.window_end_ns + self.origin.origin_ns))
 
     def report(self) -> None:
         c, lat = self.core, sorted(self.core.latencies_ns) or [0]

@@ -9,7 +9,10 @@ absolute target `start_mm + (k + 1) * travel_mm / steps` (absolute targets: no r
 and a lost reply can be resent safely), waits until IDLE, reads the position back and
 publishes `ActuatorState(step_index=k)`: the period tick the grip controller answers. With
 `lockstep: true` step k + 1 waits for the `GripCommand` of period k. Step 0 waits (at most
-`wait_timeout_s`) until the tick has `wait_subscribers` readers, so period 0 is not lost.
+`wait_timeout_s`) until the tick has `wait_subscribers` readers, so period 0 is not lost, and
+with `wait_tare: true` also until the BioTac reader's tare is done (`/biotac/status`), so no
+period runs on an untared P_DC (F_N would read tens of kPa). Period 0 starts when they are: its
+step and tick come one period later.
 
 Safety of its own: a target outside [limit_min_mm, limit_max_mm] is refused; a fault flag (FS
 stalled), a lost reference (WR after a reset), no reply, or a position that is not the target
@@ -24,7 +27,7 @@ from incipient_slip.devices import zaber
 from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.nodes.rig_check import apply_rig_config
-from incipient_slip.messages import ActuatorState, GripCommand
+from incipient_slip.messages import ActuatorState, BiotacStatus, GripCommand
 
 EXIT_NO_DEVICE = 2
 EXIT_FAULT = 3
@@ -40,7 +43,7 @@ def step_target_mm(k: int, start_mm: float, travel_mm: float, steps: int) -> flo
 class LinearActuator(Node):
     """Pulls the object one step per period on a Zaber stage and publishes the period tick."""
 
-    INPUTS = {GripCommand.TOPIC: GripCommand}
+    INPUTS = {GripCommand.TOPIC: GripCommand, BiotacStatus.TOPIC: BiotacStatus}
     OUTPUTS = {ActuatorState.TOPIC: ActuatorState}
     PARAMS = {
         "rig_config": Param("", help="config/rig.yaml: unset parameters from its zaber section"),
@@ -64,6 +67,7 @@ class LinearActuator(Node):
         "exit_when_done": Param(False, choices=(False, True), help="exit 0 after the last step"),
         "wait_subscribers": Param(1, lo=0, hi=100, help="step 0 waits for this many readers of the tick"),
         "wait_timeout_s": Param(10.0, lo=0.0, hi=3600.0, help="then starts anyway, with a warning"),
+        "wait_tare": Param(False, choices=(False, True), help="step 0 also waits for the BioTac reader's tare"),
     }
 
     def __init__(self, port=None, **kwargs):
@@ -77,6 +81,9 @@ class LinearActuator(Node):
         self.done = self.failed = False
         self.state_pub = self.create_publisher(ActuatorState)
         self.create_subscription(GripCommand, self.on_grip)
+        self.tared = not p("wait_tare")
+        if not self.tared:
+            self.create_subscription(BiotacStatus, self.on_biotac_status)
         self.client = zaber.ZaberClient(port or self._open(), device=p("device"), axis=p("axis"),
                                         microsteps_per_mm=p("microsteps_per_mm"),
                                         timeout_s=p("reply_timeout_s"), name=p("port"))
@@ -122,6 +129,11 @@ class LinearActuator(Node):
                  f"{self.param('period_s'):g} s")
         return True
 
+    def on_biotac_status(self, msg: BiotacStatus):
+        if msg.tare_state == "done" and not self.tared:
+            self.tared = True
+            self.log("BioTac tared: the pull may start")
+
     def on_grip(self, msg: GripCommand):
         self.answered = max(self.answered, msg.period)
 
@@ -131,12 +143,15 @@ class LinearActuator(Node):
         k = self.k
         if not self._started:
             short = self.state_pub.subscriber_count() < self.param("wait_subscribers")
-            if short and time.monotonic() < self._wait_until:
+            if (short or not self.tared) and time.monotonic() < self._wait_until:
                 return                 # no step before the tick has its readers (slow joiner)
             if short:
                 self.warn(f"fewer than {self.param('wait_subscribers')} reader(s) of "
                           f"{self.state_pub.topic} after {self.param('wait_timeout_s'):g} s; starting")
+            if not self.tared:
+                self.warn(f"no BioTac tare after {self.param('wait_timeout_s'):g} s; starting")
             self._started = True
+            return        # period 0 starts now (after the tare): its step and tick come one period later
         if self.param("lockstep") and k > 0 and self.answered < k - 1:
             self.warn(f"step {k} waits for the grip command of period {k - 1}", throttle_s=5.0)
             return

@@ -6,7 +6,9 @@ Feeds `/object/pose` (travel y), `/robot/state` (applied F_N), `/slip/estimate` 
 `/grip/command` (which closes each period) to `control.RunJudge`, which judges by its own count
 of periods: y > 1.5 mm or F_N at the 6.0 kPa limit fails, repeated holds are a fault, `max_steps`
 periods succeed; a command whose period is not the next one is dropped. No command within a
-wall-clock timeout is a fault ("graph silent"). It publishes `RunEvent`s, writes the JSON run
+wall-clock timeout is a fault ("graph silent"). `period_origin: tick` (device clocks, host-time
+stamps): pose and F_N stamps are taken on the period clock that the actuator's first tick sets
+(`control.PeriodOrigin`), as the estimator does. It publishes `RunEvent`s, writes the JSON run
 summary (also when interrupted), prints one screen and exits 0 (success), 1 (failure) or 3 (fault).
 """
 from __future__ import annotations
@@ -19,7 +21,7 @@ from pathlib import Path
 from incipient_slip import control
 from incipient_slip.graph.params import Param
 from incipient_slip.graph.runtime import Node, run_node
-from incipient_slip.messages import RUN_EVENT_KINDS, BiotacSlow, GripCommand, ObjectPose, PztState, RobotState, RunEvent, SlipEstimate
+from incipient_slip.messages import RUN_EVENT_KINDS, ActuatorState, BiotacSlow, GripCommand, ObjectPose, PztState, RobotState, RunEvent, SlipEstimate
 
 POSITIVE = dict(lo=1e-3)
 RECORDED = ("method", "s_d", "k", "seed", "material", "rig")     # params copied into the summary
@@ -28,7 +30,7 @@ RECORDED = ("method", "s_d", "k", "seed", "material", "rig")     # params copied
 class Supervisor(Node):
     """Judges each period of a run and writes the run summary when it ends."""
 
-    INPUTS = {t.TOPIC: t for t in (ObjectPose, RobotState, SlipEstimate, GripCommand, PztState)}
+    INPUTS = {t.TOPIC: t for t in (ObjectPose, RobotState, SlipEstimate, GripCommand, PztState, ActuatorState)}
     OUTPUTS = {RunEvent.TOPIC: RunEvent}
     PARAMS = {
         "summary_path": Param("runs/stabilize_summary.json", help='run summary JSON ("": none)'),
@@ -42,6 +44,8 @@ class Supervisor(Node):
         "silence_timeout_s": Param(5.0, **POSITIVE, help="wall clock between two grip commands (s)"),
         "data_wait_s": Param(3.0, **POSITIVE, help="longest wait for a period's data after its command (s)"),
         "quiet": Param(False, help="true: no one-screen summary (batch runs)"),
+        "period_origin": Param("stamps", choices=control.PERIOD_ORIGINS,
+                               help="stamps: period k is stamp // T; tick: from the actuator's first tick (device clocks)"),
         # recorded in the summary only
         "method": "", "s_d": Param(float("nan"), finite=False), "k": Param(float("nan"), finite=False),
         "seed": 0, "material": "", "rig": "sim",
@@ -58,8 +62,11 @@ class Supervisor(Node):
         self.pzt_on = self.summary = None
         self.steps_sent = 0
         self.events = self.create_publisher(RunEvent)
-        self.create_subscription(ObjectPose, lambda m: m.tracking_valid and self.judge.pose(m.stamp_ns, m.travel_mm, time.monotonic()))
-        self.create_subscription(RobotState, lambda m: self.judge.robot(m.stamp_ns, m.normal_force_kpa, time.monotonic()))
+        self.origin = control.PeriodOrigin(p("period_origin"), held_max=2000)
+        if self.origin.origin_ns is None:
+            self.create_subscription(ActuatorState, self.on_tick)
+        self.create_subscription(ObjectPose, lambda m: m.tracking_valid and self.on_rig(self.judge.pose, m.stamp_ns, m.travel_mm))
+        self.create_subscription(RobotState, lambda m: self.on_rig(self.judge.robot, m.stamp_ns, m.normal_force_kpa))
         self.create_subscription(SlipEstimate, lambda m: self.judge.estimate(m.period, m.stick_ratio, m.valid))
         self.create_subscription(PztState, lambda m: setattr(self, "pzt_on", m.enabled))
         self.create_subscription(GripCommand, self.on_command)
@@ -68,6 +75,17 @@ class Supervisor(Node):
         self.create_raw_subscription(lambda *_: None, BiotacSlow.TOPIC)
         self.create_timer(0.01, self.watchdog)
         self.on_shutdown(lambda: self.finish(control.Verdict("interrupted", f"interrupted after {self.judge.steps} steps")))
+
+    def on_rig(self, record, stamp_ns: int, value: float) -> None:
+        """A pose or F_N of the rig, on the period clock (held until the first tick, if need be)."""
+        if not self.origin.hold((record, stamp_ns, value)):
+            stamp = self.origin.relative(stamp_ns)
+            if stamp is not None:
+                record(stamp, value, time.monotonic())
+
+    def on_tick(self, msg: ActuatorState) -> None:
+        for item in self.origin.tick(msg.step_index, msg.stamp_ns):
+            self.on_rig(*item)
 
     def on_command(self, msg: GripCommand) -> None:
         first = self.judge.next_period is None
