@@ -21,9 +21,10 @@ demo: $(STAMP)
 	  echo "demo: the graph ran; the run ended on the paper's failure condition, as the simulated rig predicts at its fitted point (docs/validation.md)"; \
 	  exit 0; fi; exit $$code
 
-# make test: everything but the tests marked slow (tens of seconds each); make test-slow: those.
+# make test: everything but the tests marked slow (tens of seconds each), two workers (each test
+# has its own graph directory and ports, so tests do not see each other); make test-slow: those.
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -m "not slow"
+	$(BIN)/python -m pytest -q -m "not slow" -n 2
 
 test-slow: $(STAMP)
 	$(BIN)/python -m pytest -q -m slow
