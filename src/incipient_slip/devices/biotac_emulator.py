@@ -55,16 +55,44 @@ COUNTER_JUMP = 1000      # frames a "counter_jump" fault adds to the bridge's co
 
 # --- signals ------------------------------------------------------------------------------
 
-class RigSignals:
-    """12-bit channel values sampled from the simulated rig at a time of the sensor's clock.
+class PeriodSignals:
+    """12-bit channel values at a time of the sensor's clock, read from simulated periods.
 
-    P_AC sample i (2200 Hz) and slow frame f (100 Hz) are taken from the period that holds them;
-    periods are simulated in order as time reaches them, at a constant normal force with the
-    actuator stepping each period (set `normal_force_kpa` to change it). P_AC counts are offset by
-    the units' `pac_zero_counts` (the sensor's AC-coupled mid-scale) and clipped to 12 bits.
+    P_AC sample i (2200 Hz) and slow frame f (100 Hz) are taken from the period that holds them
+    (`period(k)`, a `sim.rig.PeriodOutput`, given by the subclass). P_AC counts are offset by the
+    units' `pac_zero_counts` (the sensor's AC-coupled mid-scale) and clipped to 12 bits.
     """
 
     DEFAULTS = {"PDC": 2000, "TAC": 2047, "TDC": 2400, "HAL": 0, "ELECTRODE": 3000}
+    zero: int
+    n_pac: int
+    n_slow: int
+
+    def period(self, k: int):
+        raise NotImplementedError
+
+    def sample(self, channel: str, t_ns: int) -> int:
+        """Return the channel's 12-bit value at t_ns of the sensor's clock."""
+        if channel == "PAC":
+            i = t_ns * PAC_RATE_HZ // 1_000_000_000
+            out = self.period(i // self.n_pac)
+            if out.pac_counts is None:
+                return self.zero
+            return int(min(4095, max(0, int(out.pac_counts[i % self.n_pac]) + self.zero)))
+        f = t_ns * SLOW_RATE_HZ // 1_000_000_000
+        out = self.period(f // self.n_slow)
+        row = f % self.n_slow
+        if channel.startswith("E"):
+            e = out.electrode_counts
+            return int(e[row, int(channel[1:]) - 1]) if e is not None else self.DEFAULTS["ELECTRODE"]
+        series = {"PDC": out.pdc_counts, "TAC": out.tac_counts, "TDC": out.tdc_counts}.get(channel)
+        return int(series[row]) if series is not None else self.DEFAULTS[channel]
+
+
+class RigSignals(PeriodSignals):
+    """The channels of a simulated rig of its own: periods are simulated in order as time reaches
+    them, at a constant normal force with the actuator stepping each period (set
+    `normal_force_kpa` to change it)."""
 
     def __init__(self, scene: str = "paper", material: str = "", seed: int = 0,
                  normal_force_kpa: float = 3.0, units: bt.BiotacUnits = bt.BiotacUnits()):
@@ -77,30 +105,13 @@ class RigSignals:
         self.period_index = -1
         self.out = None
 
-    def _period(self, k: int):
+    def period(self, k: int):
         if k < self.period_index:
             raise ValueError(f"period {k} is in the past (the rig is at period {self.period_index})")
         while self.period_index < k:
             self.out = self.rig.step_period(self.normal_force_kpa)
             self.period_index += 1
         return self.out
-
-    def sample(self, channel: str, t_ns: int) -> int:
-        """Return the channel's 12-bit value at t_ns of the sensor's clock."""
-        if channel == "PAC":
-            i = t_ns * PAC_RATE_HZ // 1_000_000_000
-            out = self._period(i // self.n_pac)
-            if out.pac_counts is None:
-                return self.zero
-            return int(min(4095, max(0, int(out.pac_counts[i % self.n_pac]) + self.zero)))
-        f = t_ns * SLOW_RATE_HZ // 1_000_000_000
-        out = self._period(f // self.n_slow)
-        row = f % self.n_slow
-        if channel.startswith("E"):
-            e = out.electrode_counts
-            return int(e[row, int(channel[1:]) - 1]) if e is not None else self.DEFAULTS["ELECTRODE"]
-        series = {"PDC": out.pdc_counts, "TAC": out.tac_counts, "TDC": out.tdc_counts}.get(channel)
-        return int(series[row]) if series is not None else self.DEFAULTS[channel]
 
 
 # --- the sensor ---------------------------------------------------------------------------

@@ -40,15 +40,13 @@ import math
 import os
 import threading
 import time
-import wave
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from incipient_slip.devices import biotac as bt
-from incipient_slip.messages import PAC_RATE_HZ, SLOW_RATE_HZ
-from incipient_slip.sim import contact
+from incipient_slip.devices.biotac_emulator import PeriodSignals
 from incipient_slip.sim.rig import PeriodOutput, Rig, load_scene
 
 KEEP_PERIODS = 40          # periods kept for a sensor clock running behind (20 s)
@@ -186,14 +184,12 @@ class SharedContact:
         return float(out.mocap_y_mm[min(j, len(out.mocap_y_mm) - 1)])
 
 
-class ContactSignals:
-    """The BioTac's 12-bit channels from the shared contact (the `RigSignals` interface).
+class ContactSignals(PeriodSignals):
+    """The BioTac's 12-bit channels from the shared contact.
 
     The sensor's clock (time since the bridge's first sample) is mapped onto the contact's once,
     at the first sample, so a reader that starts late still feels the present contact.
     """
-
-    DEFAULTS = {"PDC": 2000, "TAC": 2047, "TDC": 2400, "HAL": 0, "ELECTRODE": 3000}
 
     def __init__(self, shared: SharedContact, units: bt.BiotacUnits = bt.BiotacUnits()):
         self.shared = shared
@@ -201,25 +197,14 @@ class ContactSignals:
         self.n_pac, self.n_slow = shared.rig.n_pac, shared.rig.n_slow
         self.offset_ns: int | None = None
 
+    def period(self, k: int):
+        return self.shared.period(k)
+
     def sample(self, channel: str, t_ns: int) -> int:
         """Return the channel's 12-bit value at t_ns of the sensor's clock."""
         if self.offset_ns is None:
             self.offset_ns = self.shared.now_ns() - t_ns
-        t_ns += self.offset_ns
-        if channel == "PAC":
-            i = t_ns * PAC_RATE_HZ // 1_000_000_000
-            out = self.shared.period(i // self.n_pac)
-            if out.pac_counts is None:
-                return self.zero
-            return int(min(4095, max(0, int(out.pac_counts[i % self.n_pac]) + self.zero)))
-        f = t_ns * SLOW_RATE_HZ // 1_000_000_000
-        out = self.shared.period(f // self.n_slow)
-        row = f % self.n_slow
-        if channel.startswith("E"):
-            e = out.electrode_counts
-            return int(e[row, int(channel[1:]) - 1]) if e is not None else self.DEFAULTS["ELECTRODE"]
-        series = {"PDC": out.pdc_counts, "TAC": out.tac_counts, "TDC": out.tdc_counts}.get(channel)
-        return int(series[row]) if series is not None else self.DEFAULTS[channel]
+        return super().sample(channel, t_ns + self.offset_ns)
 
 
 class EmulatedRig:

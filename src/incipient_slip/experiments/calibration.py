@@ -279,9 +279,8 @@ def fit_fn_channel(scene: Scene, seed: int) -> dict:
 
 def collection_figure(scene: Scene, seed: int, fig_dir: Path, n: int = 5) -> str:
     """Write the figure of `n` collection series at the scene's parameters; return its file name."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from incipient_slip.experiments.plots import pyplot, save
+    plt = pyplot()
 
     from incipient_slip.models.labels import gross_slip_travel_mm, pseudo_stick_ratio
     from incipient_slip.sim.protocols import run_collection
@@ -306,11 +305,8 @@ def collection_figure(scene: Scene, seed: int, fig_dir: Path, n: int = 5) -> str
     axes[4].set_xlabel("period (500 ms)")
     axes[0].set_title("SIMULATED RIG (fitted, open loop): collection series, cf. the paper's data-collection figure",
                       fontsize=9)
-    fig.tight_layout()
-    fig_dir.mkdir(parents=True, exist_ok=True)
     name = "calibration_collection.png"
-    fig.savefig(fig_dir / name, dpi=110)
-    plt.close(fig)
+    save(fig, fig_dir / name)
     return name
 
 

@@ -228,11 +228,9 @@ def run(settings) -> dict:
 
 
 def _figure(points: dict, fig_dir: Path) -> str:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from incipient_slip.experiments.plots import pyplot, save
+    plt = pyplot()
 
-    fig_dir.mkdir(parents=True, exist_ok=True)
     methods = [m for m in TABLE_METHODS if m != "none"] + ["oracle"]
     grid = np.array([[points[p]["table"][m]["success"] for m in methods] for p in points], float)
     fig, ax = plt.subplots(figsize=(8, 0.5 * len(points) + 1.8))
@@ -246,19 +244,16 @@ def _figure(points: dict, fig_dir: Path) -> str:
     fig.colorbar(im, ax=ax, label="success rate")
     ax.set_title("SIMULATED RIG: where each method holds the object (success rate) over the uncertainty set",
                  fontsize=9)
-    fig.tight_layout()
     name = "validation_success.png"
-    fig.savefig(fig_dir / name, dpi=110)
-    plt.close(fig)
+    save(fig, fig_dir / name)
     return name
 
 
 def trajectory_figure(params: dict, models: dict, material: str, seed: int, fig_dir: Path) -> str:
     """Write y, F_N and the estimate against s_d over one run per method (injection, E19, oracle);
     return the figure's file name."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from incipient_slip.experiments.plots import pyplot, save
+    plt = pyplot()
 
     fig, axes = plt.subplots(3, 1, figsize=(7, 7), sharex=True)
     for method in ("injection", "e19", "oracle"):
@@ -276,11 +271,8 @@ def trajectory_figure(params: dict, models: dict, material: str, seed: int, fig_
     axes[0].legend(fontsize=7)
     axes[2].set_xlabel("step (500 ms)")
     axes[0].set_title(f"SIMULATED RIG, fitted point: one controlled run ({material}, seed {seed}) per method", fontsize=9)
-    fig.tight_layout()
-    fig_dir.mkdir(parents=True, exist_ok=True)
     name = "validation_trajectory.png"
-    fig.savefig(fig_dir / name, dpi=110)
-    plt.close(fig)
+    save(fig, fig_dir / name)
     return name
 
 
