@@ -59,3 +59,33 @@ def test_results_do_not_depend_on_the_worker_count(tmp_path):
         res = val.run(Settings(budget="quick", work=tmp_path / f"w{workers}", progress=False, options=opts))
         tables.append({n: (p["fit"]["values"], p["runs"], p["rmse"]) for n, p in res["points"].items()})
     assert tables[0] == tables[1]
+
+
+def test_joint_set_runs_the_table_only_where_the_open_loop_refit_allows(tmp_path, monkeypatch):
+    """Two joint points on an in-process cluster (so the patched consistency rule reaches the
+    workers): the consistent one gets its Table, the other is reported as excluded, and both are
+    in the rendered block and the figure."""
+    from dask.distributed import LocalCluster
+    from incipient_slip.experiments.settings import Settings
+
+    monkeypatch.setattr(val, "JOINT", {"pre_slip.bulk_stiffening_exponent": (0.5,),
+                                       "stick_slip.friction_limit_lag_s": (0.0, 0.5),
+                                       "stick_slip.mu_spread_scale": (1.0,)})
+    monkeypatch.setattr(val, "consistent_with_open_loop", lambda summ: summ["lag"] == 0.0)
+    real_summary = val.cal.mechanics_summary
+
+    def tagged(scene, *a, **k):
+        return {**real_summary(scene, *a, **k), "lag": scene.params["stick_slip"]["friction_limit_lag_s"]}
+    monkeypatch.setattr(val.cal, "mechanics_summary", tagged)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+        opts = {"joint": True, "runs": 1, "series": 6, "steps": 3, "refits": ((4, 1, 1),),
+                "scheduler": cluster.scheduler_address}
+        res = val.run(Settings(budget="quick", work=tmp_path, progress=False, options=opts))
+    pts = res["joint"]["points"]
+    assert list(pts) == ["beta 0.5, lag 0, mu spread 1", "beta 0.5, lag 0.5, mu spread 1"]
+    assert pts["beta 0.5, lag 0, mu spread 1"]["consistent"] and "table" in pts["beta 0.5, lag 0, mu spread 1"]
+    assert not pts["beta 0.5, lag 0.5, mu spread 1"]["consistent"] and "table" not in pts["beta 0.5, lag 0.5, mu spread 1"]
+    assert res["points"] == {} and (tmp_path / "figures" / res["joint_figure"]).read_bytes()[:4] == b"\x89PNG"
+    block = val.render(res)["validation-joint"]
+    assert "2 points, 1 consistent" in block and "Simulated rig" in block
+    assert block.count("| beta 0.5, lag 0, mu spread 1 |") == 2 and block.count("| beta 0.5, lag 0.5, mu spread 1 |") == 1

@@ -22,7 +22,8 @@ def save(fig, path: Path, dpi: int = 110) -> Path:
     """Write `fig` to `path` (creating its directory), close it and return the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
+    if fig.get_layout_engine() is None:     # a figure made with layout="constrained" lays itself out
+        fig.tight_layout()
     fig.savefig(path, dpi=dpi)
     pyplot().close(fig)
     return path

@@ -1,7 +1,7 @@
 """The held-out closed loop over the simulated rig's uncertainty set (docs/calibration.md).
 
 At each point of the uncertainty set (beta, the friction spread, the friction-limit lag; one at a
-time around the fitted point) the mechanics are first re-fitted to the open-loop targets T1-T4
+time around the fitted point, or with `--joint` every combination on a grid) the mechanics are first re-fitted to the open-loop targets T1-T4
 (a point that cannot meet them is reported as inconsistent), then data sets are simulated with the
 paper's collection protocol, the six slip models are trained on them (quick SVR), and the paper's
 Table is run: 7 methods x N runs of the grip law (s_d 0.3, k 2 kPa) in-process on `sim.Rig`
@@ -50,11 +50,31 @@ POINTS = {
     "lag 0.5 s": {"stick_slip.friction_limit_lag_s": 0.5},
     "lag 2 s": {"stick_slip.friction_limit_lag_s": 2.0},
 }
+# the joint uncertainty set: every combination; each point's own open-loop refit decides whether the
+# open-loop data allow it, and only those points get the closed-loop Table
+JOINT = {"pre_slip.bulk_stiffening_exponent": (0.0, 0.5, 1.0),
+         "stick_slip.friction_limit_lag_s": (0.0, 0.25, 0.5, 0.75, 1.0),
+         "stick_slip.mu_spread_scale": (0.5, 1.0, 1.5)}
+JOINT_SHORT = {"pre_slip.bulk_stiffening_exponent": "beta", "stick_slip.friction_limit_lag_s": "lag",
+               "stick_slip.mu_spread_scale": "mu spread"}
+
+
+def joint_points() -> dict[str, dict]:
+    """Return {name: overrides} for every combination of the joint uncertainty set."""
+    import itertools
+    keys = list(JOINT)
+    return {", ".join(f"{JOINT_SHORT[k]} {v:g}" for k, v in zip(keys, combo)): dict(zip(keys, combo))
+            for combo in itertools.product(*(JOINT[k] for k in keys))}
 
 
 def add_arguments(parser) -> None:
     """Add the validation's options."""
     parser.add_argument("--points", nargs="+", choices=list(POINTS), help="points of the uncertainty set (default all)")
+    parser.add_argument("--joint", action="store_true",
+                        help=f"also run the joint grid ({len(joint_points())} combinations of "
+                             + ", ".join(f"{JOINT_SHORT[k]} {'/'.join(f'{v:g}' for v in vs)}" for k, vs in JOINT.items())
+                             + "): every point is refitted to T1-T4, the Table runs only where that succeeds; "
+                               "with --joint, --points defaults to none")
     parser.add_argument("--runs", type=int, help="closed-loop runs per method and point (quick 2, full 10)")
     parser.add_argument("--series", type=int, help="training series per data set and point (quick 30, full 100)")
     parser.add_argument("--steps", type=int, help=f"steps of a run (quick 60, full {control.MAX_STEPS})")
@@ -120,9 +140,34 @@ REFITS = ((25, 2, 25), (50, 3, 40))
 SWEEP_METHODS = ("injection", "e19", "e10", "oracle")
 
 
+def refit_task(name: str, overrides: dict, seed: int, refits=None) -> dict:
+    """Return the point's stage-1 refit to T1-T4 and whether it meets them (docs/calibration.md)."""
+    from incipient_slip.sim.scene import load_scene
+
+    t0 = time.perf_counter()
+    scene = cal.with_values(load_scene("paper"), {tuple(k.split(".")): v for k, v in overrides.items()})
+    n = 0
+    for n_fit, runs_fit, evals in refits or REFITS:   # a second, larger refit only when the first misses T1-T4
+        fit = cal.fit_mechanics(scene, n_fit, runs_fit, seed, evals, progress=False)
+        scene = cal.with_values(scene, {tuple(k.split(".")): v for k, v in fit["values"].items()})
+        summ = fit["summary"]
+        n += 1
+        if consistent_with_open_loop(summ):
+            break
+    return {"point": name, "overrides": overrides, "values": fit["values"], "summary": summ, "refits": n,
+            "consistent": consistent_with_open_loop(summ), "seconds": time.perf_counter() - t0}
+
+
+def consistent_with_open_loop(summ: dict) -> bool:
+    """Whether a stage-1 summary meets the pre-registered tolerances of T1-T4."""
+    return (abs(summ["T1"] - 1.5) <= 0.2 and abs(summ["T2"] - 0.4) <= 0.2 and summ["T3"] >= 0.99
+            and abs(summ["T4"] - 2.48) <= 0.5)
+
+
 def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int, seed: int, work: str,
-               sweep_runs: int = 0, refits=None) -> dict:
-    """Return everything of one point: its stage-1 refit, model scores and the Table's runs."""
+               sweep_runs: int = 0, refits=None, fit: dict | None = None) -> dict:
+    """Return everything of one point: its stage-1 refit (`fit` when already done), model scores and
+    the Table's runs."""
     from incipient_slip.sim.rig import series_seed
     from incipient_slip.sim.scene import load_scene
     from incipient_slip.models.estimator_core import limit_blas_threads
@@ -131,18 +176,11 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
 
     limit_blas_threads(1)
     t0 = time.perf_counter()
-    scene = cal.with_values(load_scene("paper"), {tuple(k.split(".")): v for k, v in overrides.items()})
-    refits = 0
-    for n_fit, runs_fit, evals in refits or REFITS:   # a second, larger refit only when the first misses T1-T4
-        fit = cal.fit_mechanics(scene, n_fit, runs_fit, seed, evals, progress=False)
-        scene = cal.with_values(scene, {tuple(k.split(".")): v for k, v in fit["values"].items()})
-        summ = fit["summary"]
-        refits += 1
-        consistent = (abs(summ["T1"] - 1.5) <= 0.2 and abs(summ["T2"] - 0.4) <= 0.2 and summ["T3"] >= 0.99
-                      and abs(summ["T4"] - 2.48) <= 0.5)
-        if consistent:
-            break
-    d = Path(work) / name.replace(" ", "_")
+    fit = fit or refit_task(name, overrides, seed, refits)
+    scene = cal.with_values(load_scene("paper"), {tuple(k.split(".")): v
+                                                  for k, v in {**overrides, **fit["values"]}.items()})
+    summ, consistent = fit["summary"], fit["consistent"]
+    d = Path(work) / _slug(name)
     dirs = {}
     for sname in ("paper", "no_injection"):
         out = d / sname
@@ -162,7 +200,8 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
         sweep[method] = {str(sd): [closed_loop(method, scene.params, mats[j % len(mats)], series_seed(seed + 3, j),
                                                models.get(method), steps, sd) for j in range(sweep_runs)]
                          for sd in SWEEP_SD}
-    return {"point": name, "overrides": overrides, "fit": {"values": fit["values"], "summary": summ, "refits": refits},
+    return {"point": name, "overrides": overrides, "fit": {"values": fit["values"], "summary": summ,
+                                                           "refits": fit["refits"]},
             "sweep": sweep,
             "consistent": consistent, "rmse": {m: float(r.scores.rmse.mean()) for m, r in study.results.items()},
             "top10": {m: float(r.scores.top10_rmse.mean()) for m, r in study.results.items()},
@@ -184,7 +223,8 @@ def run(settings) -> dict:
     from dask.distributed import Client, LocalCluster, as_completed
 
     opt = settings.option
-    names = opt("points", list(POINTS))
+    joint = bool(opt("joint", False))
+    names = opt("points", [] if joint else list(POINTS))
     runs, n_series = opt("runs", settings.pick(2, 10)), opt("series", settings.pick(30, 100))
     steps = opt("steps", settings.pick(60, control.MAX_STEPS))
     for label, v in (("--runs", runs), ("--series", n_series), ("--steps", steps)):
@@ -193,38 +233,81 @@ def run(settings) -> dict:
     scheduler = opt("scheduler")
     if scheduler and not str(scheduler).startswith(("tcp://", "tls://", "inproc://")):
         raise UsageError(f"--scheduler {scheduler!r}: expected tcp://host:port")
+    keep = opt("keep")
+    old = {}
+    if keep:
+        import json
+        try:
+            old = json.loads(Path(keep).read_text())
+        except (OSError, ValueError) as e:
+            raise UsageError(f"--keep {keep}: {e}") from None
     work = Path(settings.work) / "data"
     cluster = None if scheduler else LocalCluster(n_workers=opt("workers", settings.jobs), threads_per_worker=1,
                                                   processes=True, dashboard_address=None)
     client = Client(scheduler or cluster)
+    grid = joint_points() if joint else {}
+
+    def table_future(name, overrides, fit=None):
+        return client.submit(point_task, name, overrides, runs, n_series, steps, settings.seed, str(work),
+                             0 if fit else opt("sweep_runs", 0), opt("refits"), fit,
+                             key=f"validation-{_slug(name)}-{settings.seed}", pure=False)
+
+    done, joint_done, refit_only = {}, {}, {}
     try:
-        futures = [client.submit(point_task, n, POINTS[n], runs, n_series, steps, settings.seed, str(work),
-                                 opt("sweep_runs", 0), opt("refits"),
-                                 key=f"validation-{n.replace(' ', '_')}-{settings.seed}", pure=False) for n in names]
-        done = {}
-        for i, fut in enumerate(as_completed(futures), 1):
-            res = fut.result()
-            done[res["point"]] = res
+        futures = [table_future(n, POINTS[n]) for n in names]
+        futures += [client.submit(refit_task, n, ov, settings.seed, opt("refits"),
+                                  key=f"refit-{_slug(n)}-{settings.seed}", pure=False) for n, ov in grid.items()]
+        total, i = len(futures), 0
+        queue = as_completed(futures)
+        for fut in queue:     # a consistent joint refit adds its Table to the queue
+            res, i = fut.result(), i + 1
+            verdict = "consistent" if res["consistent"] else "INCONSISTENT"
+            if "runs" not in res:
+                refit_only[res["point"]] = res
+                if res["consistent"]:
+                    queue.add(table_future(res["point"], res["overrides"], res))
+                    total += 1
+            elif res["point"] in grid:
+                joint_done[res["point"]] = res
+            else:
+                done[res["point"]] = res
             if settings.progress:
-                print(f"  [{i}/{len(futures)}] point {res['point']!r} done in {res['seconds']:.0f} s "
-                      f"({'consistent' if res['consistent'] else 'INCONSISTENT'} with T1-T4)", flush=True)
+                what = "refit" if "runs" not in res else "Table"
+                print(f"  [{i}/{total}] {what} of {res['point']!r} done in {res['seconds']:.0f} s "
+                      f"({verdict} with T1-T4)", flush=True)
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
-    points = {}
-    keep = opt("keep")
-    if keep:
-        import json
-        old = json.loads(Path(keep).read_text())["points"]
-        points = {n: p for n, p in old.items() if n not in names}
-    points.update({n: done[n] for n in names})
+    points = {n: p for n, p in old.get("points", {}).items() if n not in names}
+    points.update(done)
     points = {n: points[n] for n in POINTS if n in points}
     for p in points.values():
-        p["table"] = {m: summarize(r) for m, r in p["runs"].items()}
-        p["sweep_table"] = {m: {sd: summarize(r) for sd, r in by_sd.items()} for m, by_sd in p.get("sweep", {}).items()}
-    return {"budget": settings.budget, "runs": runs, "series": n_series, "steps": steps, "points": points,
-            "figure": _figure(points, settings.figures)}
+        _summarize_point(p)
+    out = {"budget": settings.budget, "runs": runs, "series": n_series, "steps": steps, "points": points,
+           "figure": _figure(points, settings.figures) if points else None}
+    if joint:
+        for p in joint_done.values():
+            _summarize_point(p)
+        out["joint"] = {"axes": {k: list(v) for k, v in JOINT.items()},
+                        "points": {n: joint_done.get(n) or {"point": n, "overrides": grid[n],
+                                                            "consistent": False, "fit": refit_only[n]}
+                                   for n in grid}}
+        out["joint_figure"] = _joint_figure(out["joint"], settings.figures)
+    elif "joint" in old:
+        out["joint"], out["joint_figure"] = old["joint"], old.get("joint_figure")
+    if old.get("trajectory"):
+        out["trajectory"] = old["trajectory"]
+    return out
+
+
+def _slug(name: str) -> str:
+    return "".join(c if c.isalnum() or c in ".-" else "_" for c in name)
+
+
+def _summarize_point(p: dict) -> None:
+    p["table"] = {m: summarize(r) for m, r in p["runs"].items()}
+    p["sweep_table"] = {m: {sd: summarize(r) for sd, r in by_sd.items()} for m, by_sd in p.get("sweep", {}).items()}
 
 
 def _figure(points: dict, fig_dir: Path) -> str:
@@ -245,6 +328,50 @@ def _figure(points: dict, fig_dir: Path) -> str:
     ax.set_title("SIMULATED RIG: where each method holds the object (success rate) over the uncertainty set",
                  fontsize=9)
     name = "validation_success.png"
+    save(fig, fig_dir / name)
+    return name
+
+
+def _joint_figure(joint: dict, fig_dir: Path) -> str:
+    """Write one panel per friction spread: beta x lag cells, each showing the success rate of every
+    method where the point is consistent with T1-T4, hatched where the open-loop data exclude it."""
+    from incipient_slip.experiments.plots import pyplot, save
+    plt = pyplot()
+
+    kb, kl, km = JOINT
+    betas, lags, spreads = (joint["axes"][k] for k in (kb, kl, km))
+    methods = [m for m in TABLE_METHODS if m != "none"] + ["oracle"]
+    by_key = {(p["overrides"][kb], p["overrides"][kl], p["overrides"][km]): p for p in joint["points"].values()}
+    fig, axes = plt.subplots(1, len(spreads), figsize=(4.2 * len(spreads), 0.9 * len(betas) * len(methods) / 4 + 2),
+                             sharey=True, squeeze=False, layout="constrained")
+    im = None
+    for ax, spread in zip(axes[0], spreads):
+        grid = np.full((len(betas) * len(methods), len(lags)), np.nan)
+        for i, b in enumerate(betas):
+            for j, lag in enumerate(lags):
+                p = by_key.get((b, lag, spread))
+                if p and p.get("table"):
+                    for m, method in enumerate(methods):
+                        grid[i * len(methods) + m, j] = p["table"][method]["success"]
+                else:
+                    ax.add_patch(plt.Rectangle((j - 0.5, i * len(methods) - 0.5), 1, len(methods), fill=False,
+                                               hatch="///", color="0.6", lw=0))
+        im = ax.imshow(grid, vmin=0, vmax=1, cmap="viridis", aspect="auto")
+        for r in range(grid.shape[0]):
+            for c in range(grid.shape[1]):
+                if np.isfinite(grid[r, c]):
+                    ax.text(c, r, f"{grid[r, c]:.1f}", ha="center", va="center", color="w", fontsize=6)
+        for i in range(1, len(betas)):
+            ax.axhline(i * len(methods) - 0.5, color="k", lw=1.2)
+        ax.set_xticks(range(len(lags)), [f"{v:g}" for v in lags], fontsize=8)
+        ax.set_xlabel("friction-limit lag [s]", fontsize=8)
+        ax.set_title(f"mu spread {spread:g}", fontsize=9)
+    axes[0][0].set_yticks(range(len(betas) * len(methods)),
+                          [f"beta {b:g}: {LABELS[m].split(' (')[0]}" for b in betas for m in methods], fontsize=6)
+    fig.colorbar(im, ax=axes[0].tolist(), label="success rate", shrink=0.8)
+    fig.suptitle("SIMULATED RIG: success rate over the joint uncertainty set "
+                 "(hatched: excluded by the open-loop targets T1-T4)", fontsize=9)
+    name = "validation_joint.png"
     save(fig, fig_dir / name)
     return name
 
@@ -305,6 +432,10 @@ def render(results: dict) -> dict:
                       f"simulator; the paper's trajectory shape is held out).*"]
         blocks["validation-fitted"] = "\n".join(lines)
     methods = [m for m in TABLE_METHODS if m != "none"] + ["oracle"]
+    if results.get("joint"):
+        blocks["validation-joint"] = _render_joint(results, head, methods)
+    if not pts:
+        return blocks
     lines = [head, "", "| point | consistent with T1-T4 | k_b [N/mm] | k_s [N/mm] | "
              + " | ".join(LABELS[m] for m in methods) + " |", "|---|---|---|---|" + "---|" * len(methods)]
     for name, p in pts.items():
@@ -331,3 +462,30 @@ def render(results: dict) -> dict:
         lines += ["", "Cells: success rate (mean final y, mean final F_N)."]
         blocks["validation-sweep"] = "\n".join(lines)
     return blocks
+
+
+def _render_joint(results: dict, head: str, methods: list) -> str:
+    """Return the joint set's block: which points the open-loop data allow, and the Table there."""
+    joint = results["joint"]
+    pts = joint["points"]
+    ok = {n: p for n, p in pts.items() if p.get("table")}
+    lines = [head, "", f"{len(pts)} points, {len(ok)} consistent with T1-T4 after their own refit.", "",
+             "| point | T1 onset [mm] | T2 spread [mm] | T3 slips | T4 no-action y [mm] | consistent |",
+             "|---|---|---|---|---|---|"]
+    for n, p in pts.items():
+        f = p["fit"]["summary"]
+        lines.append(f"| {n} | {f['T1']:.2f} | {f['T2']:.2f} | {f['T3']:.2f} | {f['T4']:.2f} | "
+                     f"{'yes' if p['consistent'] else 'no'} |")
+    lines += ["", "Closed loop at the consistent points (success rate, mean final y, mean final F_N):", "",
+              "| point | k_b [N/mm] | k_s [N/mm] | " + " | ".join(LABELS[m] for m in methods) + " |",
+              "|---|---|---|" + "---|" * len(methods)]
+    for n, p in ok.items():
+        v = p["fit"]["values"]
+        lines.append(f"| {n} | {v['pre_slip.bulk_shear_n_per_mm']:.3f} | {v['stick_slip.spring_n_per_mm']:.4f} | "
+                     + " | ".join(f"{p['table'][m]['success']:.1f} ({p['table'][m]['y']:.2f} mm, "
+                                  f"{p['table'][m]['fn']:.1f} kPa)" for m in methods) + " |")
+    if results.get("joint_figure"):
+        f = results["joint_figure"]
+        lines += ["", f"![simulated rig: success over the joint uncertainty set](figures/{f})",
+                  f"*Simulated rig, not a measurement: `{f}`.*"]
+    return "\n".join(lines)
