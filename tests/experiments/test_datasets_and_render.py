@@ -3,6 +3,8 @@ import json
 import sys
 from pathlib import Path
 
+import pytest
+
 from incipient_slip.experiments import accuracy_vs_time, diagnosis, estimation
 from incipient_slip.experiments.datasets import ensure_dataset
 
@@ -47,6 +49,16 @@ def test_estimation_verdict_names_where_injection_is_better_worse_or_the_same():
 
 def test_diagnosis_tables_show_the_loop_and_step_numbers():
     blocks = diagnosis.render(SAMPLES["diagnosis"]())
-    assert "| injection loop, seed 0 | y > 1.5 mm | 195 | 1.10 | 1.51 | 0.43 / 0.02 / 0.01 | – / – (0) |" \
-        in blocks["diagnosis-loops"]
+    assert "| injection loop, seed 0 | y > 1.5 mm | 195 | 1.10 | 1.51 | – | 0.43 / 0.02 / 0.01 | – / – (0) |" \
+        in blocks["diagnosis-loops"]      # a record without the contact state's split shows a dash
     assert "| 0, 0.190 N | 0.60 → 0.60 | 0.26 | 0.28 → 0.28 | 0.58 → 0.58 |" in blocks["diagnosis-step"]
+
+
+def test_diagnosis_splits_y_into_slide_pad_shear_and_interfacial_and_the_parts_add_up():
+    from incipient_slip.models.estimator_core import load_model
+    models = {m: load_model(method=m) for m in diagnosis.METHODS}
+    rows = diagnosis.closed_loop("injection", "pla", 0, models, 0.26, steps=12, oracle=True)
+    for r in rows:
+        assert r["slide_mm"] + r["bulk_mm"] + r["interfacial_mm"] == pytest.approx(r["y_mm"], abs=1e-9)
+        assert r["bulk_mm"] >= -1e-12 and r["interfacial_mm"] >= -1e-12     # rounding at Q ~ 0
+    assert diagnosis._split_cell(diagnosis._split(rows[-1])).count(" + ") == 2

@@ -90,10 +90,13 @@ class Windows:
         return np.concatenate([a.electrode_counts, b.electrode_counts])
 
 
-def record(out, ests: dict, ft_slip: float) -> dict:
-    """Return one period's record: forces, travel, true ratio, pseudo label and estimates."""
+def record(out, ests: dict, ft_slip: float, state=None) -> dict:
+    """Return one period's record: forces, travel (and, given the rig's contact state, its split into
+    slide, pad shear and interfacial part), true ratio, pseudo label and estimates."""
+    split = {} if state is None else {"slide_mm": state.anchor_mm, "bulk_mm": state.bulk_mm,
+                                       "interfacial_mm": state.interfacial_mm}
     return {"k": out.period_index, "fn_kpa": out.normal_force_kpa, "ft_n": out.tangential_force_n,
-            "y_mm": out.object_y_mm, "true": out.load_ratio_stick,
+            "y_mm": out.object_y_mm, **split, "true": out.load_ratio_stick,
             "pseudo": float(np.clip(1.0 - out.tangential_force_n / ft_slip, 0.0, 1.0)),
             **{f"est_{m}": v for m, v in ests.items()}}
 
@@ -115,7 +118,7 @@ def closed_loop(method: str, material: str, seed: int, models: dict, ft_slip: fl
         pair = win.push(out)
         ests = {m: (estimate_window(models[m], Windows.window(pair, models[m])) if pair else np.nan)
                 for m in use}
-        rows.append(record(out, ests, ft_slip))
+        rows.append(record(out, ests, ft_slip, rig.state))
         drive = out.load_ratio_stick if oracle else ests[method]
         fn = control.next_force(fn, drive, params, problem="" if np.isfinite(drive) else "filling").normal_force_kpa
         if out.object_y_mm > control.FAILURE_TRAVEL_MM or fn >= control.SAFETY_LIMIT_KPA - 1e-9:
@@ -195,6 +198,15 @@ def _corr(rows, key, ref, diverged=False):
     return float(np.corrcoef(a[:, 0], a[:, 1])[0, 1]), float(np.sqrt(np.mean((a[:, 0] - a[:, 1]) ** 2)))
 
 
+def _split(row: dict) -> list | None:
+    """Return [slide, pad shear, interfacial] of a record's y in mm (None for records without it)."""
+    return [row["slide_mm"], row["bulk_mm"], row["interfacial_mm"]] if "bulk_mm" in row else None
+
+
+def _split_cell(split) -> str:
+    return "–" if not split else " + ".join(f"{v:.2f}" for v in split)
+
+
 def summarize(res: dict) -> dict:
     """Return the per-run numbers of the page's tables from the per-period records."""
     summary = {"loops": {}, "oracle": {}, "step": {}}
@@ -205,7 +217,7 @@ def summarize(res: dict) -> dict:
                and r["k"] >= 60]
         summary["loops"][name] = {
             "end": last.get("end", f"{len(rows)} steps"), "steps": len(rows), "fn": last["fn_kpa"],
-            "y": last["y_mm"], "est_last": last[f"est_{m}"], "pseudo_last": last["pseudo"],
+            "y": last["y_mm"], "y_split": _split(last), "est_last": last[f"est_{m}"], "pseudo_last": last["pseudo"],
             "true_last": last["true"], "rmse_pseudo": _corr(rows, f"est_{m}", "pseudo")[1],
             "rmse_true": _corr(rows, f"est_{m}", "true")[1],
             "n_diverged": sum(abs(r["pseudo"] - r["true"]) > 0.1 for r in rows),
@@ -215,7 +227,7 @@ def summarize(res: dict) -> dict:
     for seed, rows in res["oracle"].items():
         late = [r for r in rows if r["k"] >= 100] or rows
         d = {"end": rows[-1].get("end", f"{len(rows)} steps"), "steps": len(rows), "fn": rows[-1]["fn_kpa"],
-             "y": rows[-1]["y_mm"], "true_late": float(np.mean([r["true"] for r in late])),
+             "y": rows[-1]["y_mm"], "y_split": _split(rows[-1]), "true_late": float(np.mean([r["true"] for r in late])),
              "pseudo_late": float(np.mean([r["pseudo"] for r in late]))}
         for m in METHODS:
             d[f"est_{m}_late"] = float(np.nanmean([r[f"est_{m}"] for r in late]))
@@ -244,17 +256,19 @@ def render(results: dict) -> dict[str, str]:
              + f". F_T^slip = {s['ft_slip_median_n']:.3f} N (median of the {s['n_series']} {mats} "
              f"training series, IQR {s['ft_slip_q25_n']:.3f}–{s['ft_slip_q75_n']:.3f} N); F_N at "
              f"slip: median {s['fn_at_slip_median_kpa']:.2f} kPa.")
-    loops = ["| run (simulated rig) | end | steps | final F_N [kPa] | y [mm] | ŝ / pseudo / true at the end "
+    loops = ["| run (simulated rig) | end | steps | final F_N [kPa] | y [mm] | y = slide + pad shear + "
+             "interfacial [mm] | ŝ / pseudo / true at the end "
              "| RMSE of ŝ vs pseudo / vs true where they differ by > 0.1 (periods) |",
-             "|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|"]
     for name, d in results["loops"].items():
         m, seed = name.split("/")
         label = METHOD_LABELS[m].removesuffix(" (ours)")
         loops.append(f"| {label} loop, seed {seed} | {d['end']} | {d['steps']} | {_f(d['fn'])} | "
-                     f"{_f(d['y'])} | {_f(d['est_last'])} / {_f(d['pseudo_last'])} / {_f(d['true_last'])} | "
+                     f"{_f(d['y'])} | {_split_cell(d.get('y_split'))} | {_f(d['est_last'])} / {_f(d['pseudo_last'])} / {_f(d['true_last'])} | "
                      f"{_f(d['rmse_pseudo_div'])} / {_f(d['rmse_true_div'])} ({d['n_diverged']}) |")
     for seed, d in results["oracle"].items():
         loops.append(f"| oracle, seed {seed} | {d['end']} | {d['steps']} | {_f(d['fn'])} | {_f(d['y'])} | "
+                     f"{_split_cell(d.get('y_split'))} | "
                      f"mean k ≥ 100: ŝ injection {_f(d['est_injection_late'])}, E19 {_f(d['est_e19_late'])} "
                      f"/ {_f(d['pseudo_late'])} / {_f(d['true_late'])} | injection "
                      f"{_f(d['rmse_injection_pseudo'])} / {_f(d['rmse_injection_true'])}, E19 "
