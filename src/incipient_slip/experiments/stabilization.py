@@ -520,12 +520,13 @@ def render_extension(r: dict | None, main_rows: dict) -> str:
     lim = [d for d in det if not d.get("success")
            and d.get("final_force_kpa", 0) >= control.SAFETY_LIMIT_KPA - 1e-6]
     low = [d for d in det if not d.get("success") and d not in lim]
-    low_txt = ", ".join(f"{d['material']} at F_N {d['final_force_kpa']:.2f} kPa" for d in low) or "–"
+    low_txt = ", ".join(f"{d['material']} at F_N {d['final_force_kpa']:.2f} kPa" for d in low)
+    lim_txt = (f"{len(lim)} failed by reaching the F_N limit (after {', '.join(str(d['steps']) for d in lim)} steps)"
+               if lim else "none reached the F_N limit")
     reading = (f"Reading it (simulated rig, extension): {sum(bool(d.get('success')) for d in det)} of "
                f"{len(det)} runs held all {r['steps']} steps (pseudo-label model: success rate "
-               f"{fmt(main.get('success_rate'))}); {len(lim)} failed by reaching the F_N limit (after "
-               f"{', '.join(str(d['steps']) for d in lim) or '–'} steps) and {len(low)} on y > 1.5 mm "
-               f"({low_txt}). "
+               f"{fmt(main.get('success_rate'))}); {lim_txt} and {len(low)} failed on y > 1.5 mm"
+               + (f" ({low_txt}). " if low else ". ")
                + ("So changing only the training target moves the loop towards holding, consistent "
                   "with the diagnosis that the pseudo label is a main cause here; "
                   if row.get("success_rate", 0) > main.get("success_rate", 0) else
