@@ -254,3 +254,15 @@ def test_any_substitution_text_resolves_or_is_a_launch_error(text):
         load_text(doc, {}, "f.yaml")
     except LaunchError as exc:
         assert str(exc).startswith("f.yaml")
+
+
+def test_an_optional_input_without_a_writer_is_no_warning_and_the_stabilize_launch_has_none():
+    from incipient_slip.graph.launch.topology import NodeTopics, Topology
+    from incipient_slip.nodes.rig_sim import RigSim
+    alone = Topology([NodeTopics.of("rig_sim", RigSim, {})])
+    assert not any("/pzt/command" in w for w in alone.warnings())
+    assert any("/grip/command" in w for w in alone.warnings())      # a required input still warns
+    remapped = Topology([NodeTopics.of("rig_sim", RigSim, {"/pzt/command": "/pzt/other"})])
+    assert not any("/pzt/other" in w for w in remapped.warnings())
+    launch_file = Path(__file__).resolve().parents[2] / "launch" / "stabilize.yaml"
+    assert load_text(launch_file.read_text(), {}, str(launch_file)).warnings == []

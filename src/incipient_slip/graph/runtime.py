@@ -218,6 +218,9 @@ class Node:
     # (tools and tests that pick topics at run time).
     INPUTS: dict[str, type[M.Message]] | None = None
     OUTPUTS: dict[str, type[M.Message]] | None = None
+    # Inputs a launch need not write (commands an operator or another launch may send, e.g.
+    # rig_sim's /pzt/command): no "read but never written" warning for them.
+    OPTIONAL_INPUTS: frozenset[str] = frozenset()
 
     def __init__(self, name: str, *, params: dict | None = None, remaps: dict | None = None,
                  node_name: str | None = None, graph_dir=None, raw_params: dict | None = None,

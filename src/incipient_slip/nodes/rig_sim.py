@@ -76,6 +76,7 @@ class RigSim(Node):
     """Steps the simulated rig one period at a time and publishes what the devices would."""
 
     INPUTS = {GripCommand.TOPIC: GripCommand, PztCommand.TOPIC: PztCommand}
+    OPTIONAL_INPUTS = frozenset({PztCommand.TOPIC})     # the scene sets the injection; a command may switch it
     OUTPUTS = {t.TOPIC: t for t in (BiotacPac, BiotacSlow, ObjectPose, PztState, RobotState, ActuatorState)}
     PARAMS = {
         "scene": Param("paper", help="scene file or name (scenes/)"),

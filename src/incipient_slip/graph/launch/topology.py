@@ -58,6 +58,7 @@ class NodeTopics:
     name: str
     inputs: dict[str, str] | None
     outputs: dict[str, str] | None
+    optional_inputs: frozenset[str] = frozenset()
 
     @classmethod
     def of(cls, name: str, klass: type[Node] | None, remaps: dict[str, str]) -> "NodeTopics":
@@ -68,7 +69,8 @@ class NodeTopics:
                     for t, c in declared.items()}
         if klass is None:
             return cls(name, None, None)
-        return cls(name, after_remaps(klass.INPUTS), after_remaps(klass.OUTPUTS))
+        return cls(name, after_remaps(klass.INPUTS), after_remaps(klass.OUTPUTS),
+                   frozenset(remaps.get(t, t) for t in klass.OPTIONAL_INPUTS))
 
 
 @dataclass
@@ -118,9 +120,11 @@ class Topology:
         """A line for each topic read by a node but written by none, or declared with two types,
         and for each node whose topics are not declared."""
         lines = []
+        optional = {(n.name, t) for n in self.nodes for t in n.optional_inputs}
         for topic in self.topics():
-            if self.readers.get(topic) and not self.writers_of(topic):
-                lines.append(f"topic {topic} is read by {', '.join(self.readers[topic])} but no "
+            needing = [r for r in self.readers.get(topic, []) if (r, topic) not in optional]
+            if needing and not self.writers_of(topic):
+                lines.append(f"topic {topic} is read by {', '.join(needing)} but no "
                              f"node of this launch writes it")
         declared: dict[str, dict[str, list[str]]] = {}    # topic -> type -> "node reads/writes"
         for node in self.nodes:
