@@ -8,6 +8,10 @@
    measured side by side (interleaved fresh processes, one collection series each), as ratios
    with median and spread; REV's src/ and scenes/ are exported with `git archive`. Use this on a
    loaded machine instead of the full data set: the paper-scale time scales with the ratio.
+4. `--dask-vs-pool N`: wall time of one data set of N series (scene paper, 450 steps) written by
+   the local process pool and by dask tasks on a LocalCluster of the same worker count (its
+   start-up and shut-down included), interleaved, median of `--repeats`; the arrays are checked
+   equal. This is what decides `slip dataset`'s default (docs/performance.md).
 Last line: `paper-scale dataset seconds = X` (or, with --against, the ratio of the paper scene).
 """
 from __future__ import annotations
@@ -98,13 +102,54 @@ def against(rev: str, repeats: int) -> int:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+def dask_vs_pool(n_series: int, workers: int, repeats: int, steps: int = 450) -> int:
+    """Print pool vs dask LocalCluster wall times of one data set, side by side; return an exit code."""
+    import numpy as np
+    from incipient_slip.cluster import open_client
+
+    scene = load_scene("paper")
+    times: dict = {"pool": [], "dask": []}
+    tmp = Path(tempfile.mkdtemp(prefix="bench_sim_dask_"))
+    try:
+        for r in range(repeats):
+            for how in ("pool", "dask"):
+                out = tmp / f"{how}{r}"
+                t = time.perf_counter()
+                if how == "pool":
+                    write_dataset(scene, n_series, 0, out, workers=workers, steps=steps, progress=False)
+                else:
+                    with open_client(workers=workers) as client:
+                        write_dataset(scene, n_series, 0, out, steps=steps, progress=False, client=client)
+                times[how].append(time.perf_counter() - t)
+        for i in range(n_series):
+            with np.load(tmp / "pool0" / f"series_{i:05d}.npz") as a, np.load(tmp / "dask0" / f"series_{i:05d}.npz") as b:
+                if any(not np.array_equal(a[k], b[k]) for k in a.files):
+                    print(f"bench_sim: error: series {i} differs between pool and dask", file=sys.stderr)
+                    return 1
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    pool, dask = statistics.median(times["pool"]), statistics.median(times["dask"])
+    print(f"data set paper, {n_series} series x {steps} steps, {workers} workers, {repeats} interleaved repeats, "
+          f"load average {os.getloadavg()[0]:.1f}:")
+    for how in ("pool", "dask"):
+        print(f"  {how:4s} median {statistics.median(times[how]):6.2f} s (min {min(times[how]):.2f}, "
+              f"max {max(times[how]):.2f})")
+    print(f"dask / pool wall time = {dask / pool:.2f} (arrays identical)")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--fraction", type=float, default=1.0, help="fraction of the 2 x 500 series to write (default 1)")
     ap.add_argument("--repeats", type=int, default=7, help="repeats per scene for the per-effect cost")
     ap.add_argument("--workers", type=int, default=os.cpu_count())
     ap.add_argument("--against", metavar="REV", help="only compare per-period cost with git revision REV side by side")
+    ap.add_argument("--dask-vs-pool", dest="dask_vs_pool", type=int, metavar="N",
+                    help="only compare pool and dask LocalCluster wall time of an N-series data set")
+    ap.add_argument("--steps", type=int, default=450, help="periods per series for --dask-vs-pool (default 450)")
     args = ap.parse_args(argv)
+    if args.dask_vs_pool:
+        return dask_vs_pool(args.dask_vs_pool, args.workers, args.repeats, args.steps)
     if args.against:
         return against(args.against, args.repeats)
     print(f"machine: {os.cpu_count()} cores; workers = {args.workers}; load average at start {os.getloadavg()[0]:.1f}")

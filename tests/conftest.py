@@ -152,3 +152,23 @@ def probe(graph):
         yield p
     finally:
         p.close()
+
+
+@pytest.fixture(scope="session")
+def dask_client():
+    """Return get(n): a dask Client on a LocalCluster of n single-threaded worker processes, started
+    once per n for the session (start-up costs about a second) and closed at its end."""
+    from contextlib import ExitStack
+
+    from incipient_slip.cluster import open_client
+
+    with ExitStack() as stack:
+        clients: dict = {}
+
+        def get(n: int):
+            if n not in clients:
+                clients[n] = stack.enter_context(open_client(workers=n))
+                assert len(clients[n].scheduler_info()["workers"]) == n
+            return clients[n]
+
+        yield get

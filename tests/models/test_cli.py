@@ -35,6 +35,12 @@ def test_train_on_a_missing_data_set_names_it_and_exits_2(tmp_path, capsys):
     assert "nope" in err and "Traceback" not in err
 
 
+def test_train_with_a_bad_scheduler_address_exits_2_with_one_line(fake_injection_dir, capsys):
+    assert run(["train", "--method", "e4", "--data", str(fake_injection_dir), "--scheduler", "tcp://host"]) == 2
+    err = capsys.readouterr().err
+    assert "--scheduler 'tcp://host': expected tcp://host:port" in err and len(err.strip().splitlines()) == 1
+
+
 def test_evaluate_with_a_broken_model_file_exits_2(fake_injection_dir, tmp_path, capsys):
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"junk")

@@ -87,3 +87,14 @@ def test_chunked_nystroem_ridge_equals_sklearn_nystroem_plus_ridge():
     F = ny.transform(Z)
     ridge = Ridge(alpha=1e-3 * len(Z)).fit(F, y)
     np.testing.assert_allclose(rbf_kernel(Z, centers, 0.2) @ w + b, ridge.predict(F), atol=1e-6)
+
+
+def test_grid_search_choice_is_the_same_in_process_and_on_1_and_2_dask_workers(fake_injection_dir, dask_client):
+    from incipient_slip.models.training import grid_search_svr, svr_grid
+    ws = load_windows(fake_injection_dir, feature_spec("e4"), progress=False)
+    X, y, g = ws.X.astype(np.float64)[:600], ws.y[:600], ws.series[:600]
+    grid = svr_grid(X.shape[1], quick=True) + [dict(kernel="linear", C=1.0, epsilon=0.05)]
+    local = grid_search_svr(X, y, g, grid, progress=False)
+    assert len({r["rmse"] for r in local[1]}) == len(grid)       # the choice is not a tie
+    for n in (1, 2):
+        assert grid_search_svr(X, y, g, grid, progress=False, client=dask_client(n)) == local

@@ -1,7 +1,8 @@
 """Every import inside the package points down the layers (docs/design.md), checked by parsing.
 
 experiments -> nodes -> graph / models / sim / control -> messages; `models/` never reads the
-simulator and `sim/` never imports learning or control. Imports inside functions count too.
+simulator and `sim/` never imports learning or control. `cluster` (dask tasks) sits below sim,
+models and experiments and imports only the leaves. Imports inside functions count too.
 """
 import ast
 from pathlib import Path
@@ -15,13 +16,14 @@ LEAVES = {"errors", "paths"}                   # import nothing of ours; anyone 
 # layer -> the layers it may import (besides itself and the leaves)
 ALLOWED = {
     "messages": set(),
+    "cluster": set(),                       # dask client and tasks: the generator, the grid search, the sweep
     "control": {"messages"},
-    "sim": {"messages"},
-    "models": {"messages"},
+    "sim": {"messages", "cluster"},
+    "models": {"messages", "cluster"},
     "graph": {"messages"},
     "devices": {"messages", "sim"},         # emulators take their signal values from the simulated rig
     "nodes": {"graph", "messages", "models", "sim", "control", "devices"},
-    "experiments": {"nodes", "graph", "messages", "models", "sim", "control", "devices"},
+    "experiments": {"nodes", "graph", "messages", "models", "sim", "control", "devices", "cluster"},
     "cli": {"graph", "sim", "models", "experiments"},
     "__init__": set(),
 }

@@ -40,6 +40,16 @@ def test_dataset_is_independent_of_worker_count(tmp_path):
                 assert np.array_equal(a[key], b[key]), key
 
 
+def test_dataset_on_dask_is_byte_identical_to_the_pool_for_1_and_2_workers(tmp_path, dask_client):
+    scene = load_scene("electrodes_only")
+    write_dataset(scene, 3, 11, tmp_path / "pool", workers=2, steps=8, progress=False)
+    for n in (1, 2):
+        write_dataset(scene, 3, 11, tmp_path / f"dask{n}", steps=8, progress=False, client=dask_client(n))
+    for name in ["meta.json"] + [f"series_{i:05d}.npz" for i in range(3)]:
+        pool = (tmp_path / "pool" / name).read_bytes()
+        assert all((tmp_path / f"dask{n}" / name).read_bytes() == pool for n in (1, 2)), name
+
+
 def test_collection_redraws_force_each_period_from_the_paper_grid():
     f = collection_forces_kpa(3, 450)
     assert set(f) <= set(COLLECTION_FORCES_KPA) and len(set(f)) == 13
@@ -55,12 +65,17 @@ def _run(argv):
     (["dataset", "--scene", "paper", "--series", "0", "--out", "X"], "--series must be >= 1"),
     (["dataset", "--scene", "paper", "--series", "1", "--out", "X", "--materials", "wood"], "unknown material(s) wood"),
     (["dataset", "--scene", "paper", "--series", "1", "--out", "X", "--workers", "0"], "--workers must be >= 1"),
+    (["dataset", "--scene", "paper", "--series", "1", "--out", "X", "--scheduler", "localhost:8786"],
+     "--scheduler 'localhost:8786': expected tcp://host:port"),
+    (["dataset", "--scene", "paper", "--series", "1", "--out", "X", "--scheduler", "tcp://127.0.0.1:1"],
+     "--scheduler tcp://127.0.0.1:1: no dask scheduler answered"),
 ])
-def test_bad_cli_input_exits_2_with_a_named_error(argv, needle, tmp_path, capsys):
+def test_bad_cli_input_exits_2_with_a_named_error(argv, needle, tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr("incipient_slip.cluster.CONNECT_TIMEOUT_S", 1.0)
     argv = [str(tmp_path / "out") if a == "X" else a for a in argv]
     assert _run(argv) == 2
     err = capsys.readouterr().err
-    assert needle in err and "Traceback" not in err
+    assert needle in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
 
 
 def test_cli_dataset_writes_series(tmp_path):
@@ -74,6 +89,7 @@ def test_cli_help_explains_the_commands(capsys):
         _run(["dataset", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "materials[i % n]" in text and "independent of --workers" in text
+    assert "--dask" in text and "--scheduler tcp://HOST:PORT" in text
 
 
 def test_dataset_series_equals_a_plain_step_period_loop():

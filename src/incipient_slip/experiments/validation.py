@@ -24,6 +24,7 @@ import numpy as np
 from incipient_slip.errors import UsageError
 
 from incipient_slip import control
+from incipient_slip.cluster import check_scheduler, open_client
 
 from . import calibration as cal
 
@@ -220,7 +221,7 @@ def summarize(runs: list) -> dict:
 
 def run(settings) -> dict:
     """Run every point of the uncertainty set on dask and return the Tables."""
-    from dask.distributed import Client, LocalCluster, as_completed
+    from dask.distributed import as_completed
 
     opt = settings.option
     joint = bool(opt("joint", False))
@@ -230,9 +231,7 @@ def run(settings) -> dict:
     for label, v in (("--runs", runs), ("--series", n_series), ("--steps", steps)):
         if v < 1:
             raise UsageError(f"{label} must be >= 1, got {v}")
-    scheduler = opt("scheduler")
-    if scheduler and not str(scheduler).startswith(("tcp://", "tls://", "inproc://")):
-        raise UsageError(f"--scheduler {scheduler!r}: expected tcp://host:port")
+    scheduler = check_scheduler(opt("scheduler"))
     keep = opt("keep")
     old = {}
     if keep:
@@ -242,9 +241,6 @@ def run(settings) -> dict:
         except (OSError, ValueError) as e:
             raise UsageError(f"--keep {keep}: {e}") from None
     work = Path(settings.work) / "data"
-    cluster = None if scheduler else LocalCluster(n_workers=opt("workers", settings.jobs), threads_per_worker=1,
-                                                  processes=True, dashboard_address=None)
-    client = Client(scheduler or cluster)
     grid = joint_points() if joint else {}
 
     def table_future(name, overrides, fit=None):
@@ -253,7 +249,7 @@ def run(settings) -> dict:
                              key=f"validation-{_slug(name)}-{settings.seed}", pure=False)
 
     done, joint_done, refit_only = {}, {}, {}
-    try:
+    with open_client(scheduler, opt("workers", settings.jobs)) as client:
         futures = [table_future(n, POINTS[n]) for n in names]
         futures += [client.submit(refit_task, n, ov, settings.seed, opt("refits"),
                                   key=f"refit-{_slug(n)}-{settings.seed}", pure=False) for n, ov in grid.items()]
@@ -275,10 +271,6 @@ def run(settings) -> dict:
                 what = "refit" if "runs" not in res else "Table"
                 print(f"  [{i}/{total}] {what} of {res['point']!r} done in {res['seconds']:.0f} s "
                       f"({verdict} with T1-T4)", flush=True)
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
     points = {n: p for n, p in old.get("points", {}).items() if n not in names}
     points.update(done)
     points = {n: points[n] for n in POINTS if n in points}

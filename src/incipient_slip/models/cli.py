@@ -40,6 +40,10 @@ def register(subparsers) -> None:
                    help="training target: the paper's pseudo-stick ratio (default) or, as an "
                    "EXTENSION (not the paper's method), the simulator's true load_ratio_stick")
     p.add_argument("--quick", action="store_true", help="small grid")
+    p.add_argument("--workers", type=int, help="run the grid search's candidate fits as dask tasks on a "
+                   "LocalCluster of this many processes (default: in this process)")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the grid search's candidate fits "
+                   "as dask tasks on this running scheduler")
     p.add_argument("--out", type=Path, help="model file (default runs/models/METHOD.npz)")
     p.set_defaults(func=cmd_train)
 
@@ -75,12 +79,20 @@ def _train(args) -> int:
     from .modelfile import save_model
     from ..paths import runs_dir
     from .training import held_out_series, load_windows, split_train_test, train_model
+    from ..cluster import check_scheduler, check_workers, open_client
+    check_scheduler(args.scheduler)
+    if args.workers is not None:
+        check_workers(args.workers)
     spec = feature_spec(args.method, window_s=args.window_s)
     ws = load_windows(args.data, spec, after_slip=args.after_slip, label=args.label)
     test_series = held_out_series(ws.series_materials())
     train, test = split_train_test(ws, test_series)
-    res = train_model(train, args.kind, max_train=args.max_train, grid_max=args.grid_max,
-                      n_components=args.components, quick=args.quick)
+    kw = dict(max_train=args.max_train, grid_max=args.grid_max, n_components=args.components, quick=args.quick)
+    if args.workers or args.scheduler:
+        with open_client(args.scheduler, args.workers) as client:
+            res = train_model(train, args.kind, client=client, **kw)
+    else:
+        res = train_model(train, args.kind, **kw)
     sc = series_scores(args.method, test.y, res.model.predict(test.X), test.series, test.material)
     res.model.header.update(test_series=[int(v) for v in test_series], after_slip=args.after_slip,
                             label=args.label, test_rmse_mean=float(sc.rmse.mean()))

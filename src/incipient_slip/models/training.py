@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from ..cluster import map_tasks
 from . import dataset as ds
 from .features import FeatureSpec, series_features, valid_window_mask
 from .labels import LABELS, label_series, training_labels
@@ -185,18 +186,31 @@ def _fit_svr(Z, y, params, cache_mb=500):
     return SVR(cache_size=cache_mb, **p).fit(Z, y)
 
 
-def grid_search_svr(X, y, groups, grid, n_folds=3, progress=True, desc="grid"):
-    """Return (best params, rows of {params, rmse}) by grouped k-fold RMSE on standardized X."""
+def _fold_mse(Z, y, tr, va, params) -> float:
+    """Return the validation MSE of one SVR candidate fitted on one grouped fold (a grid task)."""
+    m = _fit_svr(Z[tr], y[tr], params)
+    return float(np.mean((np.clip(m.predict(Z[va]), 0, 1) - y[va]) ** 2))
+
+
+def grid_search_svr(X, y, groups, grid, n_folds=3, progress=True, desc="grid", client=None):
+    """Return (best params, rows of {params, rmse}) by grouped k-fold RMSE on standardized X.
+
+    client: a dask Client (`cluster.open_client`): the candidate x fold fits run there as tasks.
+    Every fit is deterministic, so the rows and the choice do not depend on where they ran."""
     mean, scale = _standardize(X)
     Z = (X - mean) / scale
     folds = list(grouped_folds(groups, n_folds))
-    rows = []
-    for params in tqdm(grid, desc=desc, unit="cfg", disable=not progress, leave=False):
-        errs = []
-        for tr, va in folds:
-            m = _fit_svr(Z[tr], y[tr], params)
-            errs.append(np.mean((np.clip(m.predict(Z[va]), 0, 1) - y[va]) ** 2))
-        rows.append({"params": params, "rmse": float(np.sqrt(np.mean(errs)))})
+    cells = [(params, tr, va) for params in grid for tr, va in folds]
+    if client is None:
+        mse = [_fold_mse(Z, y, tr, va, params)
+               for params, tr, va in tqdm(cells, desc=desc, unit="fit", disable=not progress, leave=False)]
+    else:
+        Zf, yf = client.scatter([Z, y])
+        mse = map_tasks(client, _fold_mse, [(Zf, yf, tr, va, params) for params, tr, va in cells],
+                        desc=desc, progress=progress, key="svr-fit")
+    k = len(folds)
+    rows = [{"params": params, "rmse": float(np.sqrt(np.mean(mse[i * k:(i + 1) * k])))}
+            for i, params in enumerate(grid)]
     best = min(rows, key=lambda r: r["rmse"])
     return best["params"], rows
 
@@ -261,10 +275,11 @@ class TrainResult:
 
 def train_model(ws: WindowSet, kind: str = "svr", max_train: int | None = 6000,
                 grid_max: int = 2000, n_components: int = 1000, quick: bool = False,
-                progress: bool = True, params: dict | None = None) -> TrainResult:
+                progress: bool = True, params: dict | None = None, client=None) -> TrainResult:
     """Return a Model trained on all rows of `ws` (the caller removes the test series first).
 
     params: skip the grid and use these SVR parameters (kind svr / gamma for nystroem).
+    client: a dask Client to run the grid search's fits on (grid_search_svr).
     """
     if kind not in KINDS:
         raise ValueError(f"kind {kind!r} unknown; expected one of {', '.join(KINDS)}")
@@ -277,7 +292,7 @@ def train_model(ws: WindowSet, kind: str = "svr", max_train: int | None = 6000,
         n_folds = min(3, len(np.unique(groups[g])))
         params, grid_rows = grid_search_svr(X[g], y[g], groups[g], svr_grid(X.shape[1], quick),
                                             n_folds=n_folds, progress=progress,
-                                            desc=f"grid {ws.spec.method}")
+                                            desc=f"grid {ws.spec.method}", client=client)
     report["grid"] = grid_rows
     if kind == "svr":
         rows = subsample_rows(len(y), max_train)

@@ -18,9 +18,11 @@ def _scene(name: str):
 
 def cmd_dataset(args) -> int:
     """Write a data set; return an exit code."""
+    from ..cluster import check_scheduler, open_client
     from .dataset import write_dataset
 
     scene = _scene(args.scene)
+    check_scheduler(args.scheduler)
     if args.series < 1:
         raise UsageError(f"--series must be >= 1, got {args.series}")
     if args.workers is not None and args.workers < 1:
@@ -36,8 +38,12 @@ def cmd_dataset(args) -> int:
     if unknown:
         raise UsageError(f"unknown material(s) {', '.join(unknown)} (known: {', '.join(scene.params['materials'])})")
     t0 = time.perf_counter()
-    write_dataset(scene, args.series, args.seed, out, materials=args.materials, workers=args.workers,
-                  steps=args.steps, progress=not args.quiet)
+    kw = dict(materials=args.materials, steps=args.steps, progress=not args.quiet)
+    if args.dask or args.scheduler:
+        with open_client(args.scheduler, args.workers) as client:
+            write_dataset(scene, args.series, args.seed, out, client=client, **kw)
+    else:
+        write_dataset(scene, args.series, args.seed, out, workers=args.workers, **kw)
     print(f"wrote {args.series} series of scene {scene.name!r} to {out} in {time.perf_counter() - t0:.1f} s")
     return 0
 
@@ -49,13 +55,21 @@ def register(subparsers) -> None:
         description="Generate data-collection series on the simulated rig: per series 450 periods of "
         "500 ms, F_N redrawn each period from 1.1..5.9 kPa, the actuator stepping 23 mm in 450 steps. "
         "Writes meta.json + series_NNNNN.npz (format: docs/design.md). Series i uses material "
-        "materials[i % n] and a seed derived from (--seed, i), so output is independent of --workers.")
+        "materials[i % n] and a seed derived from (--seed, i), so output is independent of --workers. "
+        "Runs on a local process pool by default (it starts in milliseconds; a dask LocalCluster "
+        "takes about a second, docs/performance.md); --dask runs the series as dask tasks on a "
+        "LocalCluster, --scheduler tcp://HOST:PORT on a running dask cluster (--out then on a file "
+        "system every worker can write).")
     p.add_argument("--scene", required=True, help="scene name in scenes/ (paper, no_injection, ...) or a YAML path")
     p.add_argument("--series", type=int, required=True, help="number of series to write")
     p.add_argument("--seed", type=int, default=0, help="data set seed (default 0)")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--materials", nargs="+", metavar="NAME", help="restrict to these materials (default: the scene's)")
-    p.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
+    p.add_argument("--workers", type=int, default=None, help="worker processes, of the pool or of the "
+                   "--dask LocalCluster (default: all cores)")
+    p.add_argument("--dask", action="store_true", help="run the series as dask tasks on a LocalCluster")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the series as dask tasks on this "
+                   "running scheduler (implies --dask)")
     p.add_argument("--steps", type=int, default=450, help="periods per series (default 450, the paper's)")
     p.add_argument("--overwrite", action="store_true", help="allow writing into a directory that holds a data set")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

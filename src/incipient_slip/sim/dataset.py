@@ -3,7 +3,10 @@
 Format: docs/design.md ("Data set on disk"). npz because it needs numpy only, one file per
 series streams to disk from each worker (memory bounded to one series per worker) and keys load
 lazily. Series i uses material materials[i % n_materials] and seed series_seed(seed, i), so the
-result does not depend on the number of workers.
+arrays do not depend on the number of workers nor on where they run: a local process pool (the
+default), or dask tasks when a `client` is given (`incipient_slip.cluster`; `slip dataset --dask`
+or `--scheduler tcp://host:port`). With a remote scheduler `out_dir` must be a path every worker
+can write (a shared file system).
 """
 from __future__ import annotations
 
@@ -15,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..cluster import as_done
 from .protocols import run_collection
 from .rig import Rig, series_seed
 from .scene import Scene
@@ -74,8 +78,11 @@ def physics_fingerprint(scene: Scene) -> str:
 
 
 def write_dataset(scene: Scene, n_series: int, seed: int, out_dir: str | Path, *, materials=None,
-                  workers: int | None = None, steps: int = 450, progress: bool = True) -> Path:
-    """Write a data set directory (meta.json + series_NNNNN.npz) and return its path."""
+                  workers: int | None = None, steps: int = 450, progress: bool = True, client=None) -> Path:
+    """Write a data set directory (meta.json + series_NNNNN.npz) and return its path.
+
+    client: a dask Client (`cluster.open_client`) to run the series on as tasks; else `workers`
+    local processes (default all cores; 1 runs in this process)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     mats = tuple(materials) if materials else scene.materials
@@ -97,6 +104,11 @@ def write_dataset(scene: Scene, n_series: int, seed: int, out_dir: str | Path, *
     }
     (out / "meta.json").write_text(json.dumps(meta, indent=1))
     jobs = [(scene, mats, seed, i, steps, str(out)) for i in range(n_series)]
+    if client is not None:
+        for _ in as_done(client, _worker, [(job,) for job in jobs], desc=f"dataset {scene.name}",
+                         progress=progress, key=f"series-{scene.name}"):
+            pass
+        return out
     workers = max(1, int(workers or os.cpu_count() or 1))
     bar = None
     if progress:
