@@ -49,6 +49,7 @@ def check_workers(workers: int | None) -> int:
 def open_client(scheduler: str | None = None, workers: int | None = None):
     """Yield a dask Client on `scheduler` (tcp://host:port) or on a LocalCluster of `workers`
     single-threaded processes; close it (and the cluster) on exit."""
+    import dask
     from dask.distributed import Client, LocalCluster
 
     scheduler = check_scheduler(scheduler)
@@ -61,7 +62,9 @@ def open_client(scheduler: str | None = None, workers: int | None = None):
             raise UsageError(f"--scheduler {scheduler}: no dask scheduler answered within "
                              f"{CONNECT_TIMEOUT_S:g} s ({exc.__class__.__name__})") from None
     else:
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0")
+        # the workers' sampling profiler costs ~10 % CPU on our short tasks (docs/performance.md)
+        with dask.config.set({"distributed.worker.profile.enabled": False}):
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0")
         client = Client(cluster)
     try:
         yield client
