@@ -75,7 +75,7 @@ def open_client(scheduler: str | None = None, workers: int | None = None):
 
 
 def as_done(client, fn: Callable, jobs: Sequence[tuple], *, desc: str, progress: bool = True,
-            key: str = "task") -> Iterator[tuple[int, object]]:
+            key: str = "task", leave: bool = True) -> Iterator[tuple[int, object]]:
     """Submit fn(*job) for every job; yield (index, result) in completion order with a progress bar.
     A task's error is raised here; leaving early cancels the tasks not yet done."""
     from dask.distributed import as_completed
@@ -85,7 +85,7 @@ def as_done(client, fn: Callable, jobs: Sequence[tuple], *, desc: str, progress:
     futures = [client.submit(fn, *job, key=f"{key}-{run}-{i}", pure=False) for i, job in enumerate(jobs)]
     index = {f.key: i for i, f in enumerate(futures)}
     try:
-        with tqdm(total=len(futures), desc=desc, unit="task", disable=not progress) as bar:
+        with tqdm(total=len(futures), desc=desc, unit="task", disable=not progress, leave=leave) as bar:
             for fut in as_completed(futures):
                 res = fut.result()
                 bar.update()

@@ -207,7 +207,7 @@ def grid_search_svr(X, y, groups, grid, n_folds=3, progress=True, desc="grid", c
     else:
         Zf, yf = client.scatter([Z, y])
         mse = map_tasks(client, _fold_mse, [(Zf, yf, tr, va, params) for params, tr, va in cells],
-                        desc=desc, progress=progress, key="svr-fit")
+                        desc=desc, progress=progress, key="svr-fit", leave=False)
     k = len(folds)
     rows = [{"params": params, "rmse": float(np.sqrt(np.mean(mse[i * k:(i + 1) * k])))}
             for i, params in enumerate(grid)]
