@@ -77,7 +77,7 @@ def test_joint_set_runs_the_table_only_where_the_open_loop_refit_allows(tmp_path
     def tagged(scene, *a, **k):
         return {**real_summary(scene, *a, **k), "lag": scene.params["stick_slip"]["friction_limit_lag_s"]}
     monkeypatch.setattr(val.cal, "mechanics_summary", tagged)
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster:
         opts = {"joint": True, "runs": 1, "series": 6, "steps": 3, "refits": ((4, 1, 1),),
                 "scheduler": cluster.scheduler_address}
         res = val.run(Settings(budget="quick", work=tmp_path, progress=False, options=opts))
