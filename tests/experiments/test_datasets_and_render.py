@@ -62,3 +62,36 @@ def test_diagnosis_splits_y_into_slide_pad_shear_and_interfacial_and_the_parts_a
         assert r["slide_mm"] + r["bulk_mm"] + r["interfacial_mm"] == pytest.approx(r["y_mm"], abs=1e-9)
         assert r["bulk_mm"] >= -1e-12 and r["interfacial_mm"] >= -1e-12     # rounding at Q ~ 0
     assert diagnosis._split_cell(diagnosis._split(rows[-1])).count(" + ") == 2
+
+
+def test_accuracy_vs_time_latency_runs_on_one_blas_thread_like_the_estimator_node():
+    """More threads than free cores make OpenMP spin on a shared machine (trees 40x slower)."""
+    import numpy as np
+    from threadpoolctl import threadpool_info, threadpool_limits
+    seen = []
+    with threadpool_limits(limits=2):
+        accuracy_vs_time.latency_ms(lambda w: seen.append(max(i["num_threads"] for i in threadpool_info())),
+                                    np.zeros(4), reps=3)
+    assert set(seen) == {1}
+
+
+def test_accuracy_vs_time_page_states_command_sizes_threads_and_load():
+    results = SAMPLES["accuracy-vs-time"]()
+    results.update(budget="full", series=200, default_series=500, jobs=1, load_average=[7.94, 9.1])
+    results["sweeps"]["sizes"] = {"max_train": 4000, "grid_max": 1500, "hgb_max": 20000}
+    text = accuracy_vs_time.render(results)["tradeoff-provenance"]
+    assert "`slip reproduce accuracy-vs-time --series 200 --jobs 1`" in text
+    assert "200 series of the paper scene" in text and "full budget" in text
+    assert "at most 4000 windows (SVR grid search on 1500), gradient-boosted trees on at most 20000" in text
+    assert "load average (1 min) 7.9-9.1" in text and "simulated rig, not measurements" in text
+
+
+def test_accuracy_vs_time_recommendation_follows_the_numbers():
+    results = SAMPLES["accuracy-vs-time"]()
+    results["sweeps"]["points"][2]["latency_ms"] = 3.5
+    text = accuracy_vs_time.render(results)["tradeoff-recommendation"]
+    assert "is 0.20-3.50 ms over every setting" in text and "window length (0.5-1 s)" in text
+    assert "Nystroem 300 + ridge (RMSE 0.175, fit 2 s) is within 5 % of the best exact SVR" in text
+    results["scale"]["nystroem"][0]["rmse"] = 0.2
+    text = accuracy_vs_time.render(results)["tradeoff-recommendation"]
+    assert "more than 5 % worse than the best exact SVR (RMSE 0.180 on 1000 windows): keep the exact SVR" in text
