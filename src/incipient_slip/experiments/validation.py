@@ -79,6 +79,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--runs", type=int, help="closed-loop runs per method and point (quick 2, full 10)")
     parser.add_argument("--series", type=int, help="training series per data set and point (quick 30, full 100)")
     parser.add_argument("--steps", type=int, help=f"steps of a run (quick 60, full {control.MAX_STEPS})")
+    parser.add_argument("--sweep-at", dest="sweep_at", nargs="+", metavar="JOINT_POINT",
+                        help="run these joint points again with the s_d sweep (--sweep-runs, default 3) and put "
+                             "them into the joint results kept with --keep (names as in docs/validation.md, "
+                             "e.g. 'beta 1, lag 1, mu spread 0.5')")
     parser.add_argument("--sweep-runs", dest="sweep_runs", type=int,
                         help=f"also sweep s_d over {SWEEP_SD} at each point with this many runs per method (default 0: no sweep)")
     parser.add_argument("--keep", type=Path, metavar="RESULTS_JSON",
@@ -138,7 +142,7 @@ SWEEP_SD = (0.3, 0.5, 0.7, 0.8)
 # stage-1 refit per point: (collection series, no-action runs per material, evaluations); the second
 # only when the first cannot meet T1-T4 (an open-loop rule, the same for every point)
 REFITS = ((25, 2, 25), (50, 3, 40))
-SWEEP_METHODS = ("injection", "e19", "e10", "oracle")
+SWEEP_METHODS = ("injection", "e19", "e10", "e4", "oracle")
 
 
 def refit_task(name: str, overrides: dict, seed: int, refits=None) -> dict:
@@ -225,7 +229,7 @@ def run(settings) -> dict:
 
     opt = settings.option
     joint = bool(opt("joint", False))
-    names = opt("points", [] if joint else list(POINTS))
+    names = opt("points", [] if (joint or opt("sweep_at")) else list(POINTS))
     runs, n_series = opt("runs", settings.pick(2, 10)), opt("series", settings.pick(30, 100))
     steps = opt("steps", settings.pick(60, control.MAX_STEPS))
     for label, v in (("--runs", runs), ("--series", n_series), ("--steps", steps)):
@@ -241,18 +245,26 @@ def run(settings) -> dict:
         except (OSError, ValueError) as e:
             raise UsageError(f"--keep {keep}: {e}") from None
     work = Path(settings.work) / "data"
-    grid = joint_points() if joint else {}
+    grid = joint_points()
+    sweep_at = opt("sweep_at") or []
+    for n in sweep_at:
+        if n not in grid:
+            raise UsageError(f"--sweep-at {n!r}: not a point of the joint set (e.g. {next(iter(grid))!r})")
+    if sweep_at and not joint and "joint" not in old:
+        raise UsageError("--sweep-at needs the joint results: add --joint, or --keep a results file that has them")
 
     def table_future(name, overrides, fit=None):
+        sweep = opt("sweep_runs") or 3 if name in sweep_at else (0 if name in grid else opt("sweep_runs", 0))
         return client.submit(point_task, name, overrides, runs, n_series, steps, settings.seed, str(work),
-                             0 if fit else opt("sweep_runs", 0), opt("refits"), fit,
-                             key=f"validation-{_slug(name)}-{settings.seed}", pure=False)
+                             sweep, opt("refits"), fit,
+                             key=f"validation-{_slug(name)}-{settings.seed}-sweep{sweep}", pure=False)
 
     done, joint_done, refit_only = {}, {}, {}
     with open_client(scheduler, opt("workers", settings.jobs)) as client:
-        futures = [table_future(n, POINTS[n]) for n in names]
+        futures = [table_future(n, POINTS[n]) for n in names] + [table_future(n, grid[n]) for n in sweep_at]
         futures += [client.submit(refit_task, n, ov, settings.seed, opt("refits"),
-                                  key=f"refit-{_slug(n)}-{settings.seed}", pure=False) for n, ov in grid.items()]
+                                  key=f"refit-{_slug(n)}-{settings.seed}", pure=False)
+                    for n, ov in (grid.items() if joint else ()) if n not in sweep_at]
         total, i = len(futures), 0
         queue = as_completed(futures)
         for fut in queue:     # a consistent joint refit adds its Table to the queue
@@ -260,7 +272,7 @@ def run(settings) -> dict:
             verdict = "consistent" if res["consistent"] else "INCONSISTENT"
             if "runs" not in res:
                 refit_only[res["point"]] = res
-                if res["consistent"]:
+                if res["consistent"]:     # (a --sweep-at point has its Table with the sweep already)
                     queue.add(table_future(res["point"], res["overrides"], res))
                     total += 1
             elif res["point"] in grid:
@@ -278,16 +290,20 @@ def run(settings) -> dict:
         _summarize_point(p)
     out = {"budget": settings.budget, "runs": runs, "series": n_series, "steps": steps, "points": points,
            "figure": _figure(points, settings.figures) if points else None}
+    for p in joint_done.values():
+        _summarize_point(p)
     if joint:
-        for p in joint_done.values():
-            _summarize_point(p)
         out["joint"] = {"axes": {k: list(v) for k, v in JOINT.items()},
                         "points": {n: joint_done.get(n) or {"point": n, "overrides": grid[n],
                                                             "consistent": False, "fit": refit_only[n]}
                                    for n in grid}}
+    elif "joint" in old:
+        out["joint"] = old["joint"]
+        out["joint"]["points"].update(joint_done)
+    if joint_done or joint:
         out["joint_figure"] = _joint_figure(out["joint"], settings.figures)
     elif "joint" in old:
-        out["joint"], out["joint_figure"] = old["joint"], old.get("joint_figure")
+        out["joint_figure"] = old.get("joint_figure")
     if old.get("trajectory"):
         out["trajectory"] = old["trajectory"]
     return out
@@ -440,9 +456,10 @@ def render(results: dict) -> dict:
               f"![simulated rig: success over the uncertainty set](figures/{results['figure']})",
               f"*Simulated rig, not a measurement: `{results['figure']}`.*"]
     blocks["validation-set"] = "\n".join(lines)
-    sw = {n: p["sweep_table"] for n, p in pts.items() if p.get("sweep_table")}
+    swept = {**pts, **(results.get("joint") or {}).get("points", {})}
+    sw = {n: p["sweep_table"] for n, p in swept.items() if p.get("sweep_table")}
     if sw:
-        n_sweep = max(len(r) for p in pts.values() for by_sd in p.get("sweep", {}).values() for r in by_sd.values())
+        n_sweep = max(len(r) for p in swept.values() for by_sd in p.get("sweep", {}).values() for r in by_sd.values())
         lines = [f"Simulated rig, not measurements: {n_sweep} runs per cell (seeds other than the Table's), "
                  f"{results['steps']} steps, the point's own models.", "", "| point | method | " + " | ".join(f"s_d {sd}" for sd in SWEEP_SD) + " |",
                  "|---|---|" + "---|" * len(SWEEP_SD)]
