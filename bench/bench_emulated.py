@@ -28,7 +28,6 @@ import os
 import random
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -40,23 +39,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
+from incipient_slip.devices.natnet_emulator import free_udp_port_pair  # noqa: E402
 from incipient_slip.graph.bag import read_bag          # noqa: E402
 from incipient_slip.messages import decode_any          # noqa: E402
 
 
-def free_udp_pair() -> int:
-    while True:
-        port = random.randint(20000, 60000)
-        try:
-            socks = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(2)]
-            for s, p in zip(socks, (port, port + 1)):
-                s.bind(("127.0.0.1", p))
-            return port
-        except OSError:
-            continue
-        finally:
-            for s in socks:
-                s.close()
 
 
 def run(rig: str, steps: int, seed: int, work: Path) -> dict[str, list[float]]:
@@ -72,7 +59,7 @@ def run(rig: str, steps: int, seed: int, work: Path) -> dict[str, list[float]]:
     if rig == "sim":
         args.append("lockstep:=false")
     else:
-        args += [f"emu_dir:={work / 'emu'}", f"emu_natnet_port:={free_udp_pair()}",
+        args += [f"emu_dir:={work / 'emu'}", f"emu_natnet_port:={free_udp_port_pair()}",
                  f"emu_address:=127.0.{random.randint(1, 254)}.{random.randint(2, 254)}"]
     try:
         time.sleep(0.5)        # the recorder subscribes before the rig's first tick (no handshake here)

@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import math
 import random
-import socket
 import sys
 import wave
 
@@ -17,6 +16,7 @@ import numpy as np
 import pytest
 
 from incipient_slip.devices.emulated_rig import ContactSignals, HertzPress, SharedContact, wav_rms
+from incipient_slip.devices.natnet_emulator import free_udp_port_pair
 from incipient_slip.graph.bag import read_bag
 from incipient_slip.sim.rig import Rig, load_scene
 
@@ -88,26 +88,10 @@ def test_wav_rms_reads_the_tail_of_a_growing_file(tmp_path):
 
 # --- the whole loop through the device nodes ---------------------------------------------------
 
-def _free_udp_pair() -> int:
-    for _ in range(100):
-        port = random.randint(20000, 60000)
-        socks = []
-        try:
-            for p in (port, port + 1):
-                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-                socks.append(s)
-                s.bind(("127.0.0.1", p))
-            return port
-        except OSError:
-            continue
-        finally:
-            for s in socks:
-                s.close()
-    raise RuntimeError("no free UDP port pair")
 
 
 def _emulated_args(tmp_path) -> list[str]:
-    return [f"emu_dir:={tmp_path / 'emu'}", f"emu_natnet_port:={_free_udp_pair()}",
+    return [f"emu_dir:={tmp_path / 'emu'}", f"emu_natnet_port:={free_udp_port_pair()}",
             f"emu_address:=127.0.{random.randint(1, 254)}.{random.randint(2, 254)}"]
 
 

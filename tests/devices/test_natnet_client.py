@@ -4,21 +4,16 @@ client owes it. Tests wait for conditions (with a hard deadline), never for fixe
 from __future__ import annotations
 
 import math
-import socket
 import time
 
 import pytest
 
 from incipient_slip.devices import natnet as nn
-from incipient_slip.devices.natnet_emulator import NatNetEmulator
+from incipient_slip.devices.natnet_emulator import NatNetEmulator, free_udp_port
 
 pytestmark = pytest.mark.timeout(60)
 
 
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class Session:

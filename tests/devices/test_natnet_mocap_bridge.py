@@ -2,14 +2,13 @@
 never a zero or NaN pose for an untracked or broken frame, exit 2 when no server answers."""
 from __future__ import annotations
 
-import socket
 import time
 
 import numpy as np
 import pytest
 
 from incipient_slip.devices import natnet as nn
-from incipient_slip.devices.natnet_emulator import NatNetEmulator
+from incipient_slip.devices.natnet_emulator import NatNetEmulator, free_udp_port
 from incipient_slip.graph.runtime import Node
 from incipient_slip.messages import ObjectPose
 from incipient_slip.nodes.mocap_bridge import MocapBridge, pose_from_frame
@@ -17,10 +16,6 @@ from incipient_slip.nodes.mocap_bridge import MocapBridge, pose_from_frame
 pytestmark = pytest.mark.timeout(60)
 
 
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def frame_with(body: nn.RigidBody, **kw) -> nn.Frame:

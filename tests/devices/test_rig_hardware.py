@@ -4,7 +4,6 @@ the emulated devices answer."""
 from __future__ import annotations
 
 import re
-import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -13,7 +12,7 @@ import pytest
 import yaml
 
 from incipient_slip.devices import rig_config
-from incipient_slip.devices.natnet_emulator import NatNetEmulator
+from incipient_slip.devices.natnet_emulator import NatNetEmulator, free_udp_port
 from incipient_slip.devices.zaber_emulator import ZaberEmulator
 from incipient_slip.errors import UsageError
 
@@ -21,10 +20,6 @@ pytestmark = pytest.mark.timeout(90)
 REPO = Path(__file__).resolve().parents[2]
 
 
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def missing_rig(tmp_path) -> Path:

@@ -28,7 +28,7 @@ from collections import Counter, deque
 
 from incipient_slip.devices import natnet as nn
 
-__all__ = ["NatNetEmulator", "main"]
+__all__ = ["NatNetEmulator", "free_udp_port", "free_udp_port_pair", "main"]
 
 CLOCK_HZ = 10_000_000       # ticks per second of the suffix stamps (Motive reports its own)
 LATENCY_S = 0.004           # mid-exposure to transmit, as the suffix stamps report it
@@ -36,6 +36,33 @@ FAULTS = ("gap", "duplicate", "reorder", "truncate")
 # the Motive release that speaks each NatNet version, reported as its app version (not verified)
 MOTIVE_VERSION = {(2, 10): (1, 10, 0, 0), (3, 1): (2, 1, 0, 0), (4, 0): (3, 0, 0, 0),
                   (4, 1): (3, 1, 0, 0), (4, 2): (3, 2, 0, 0)}
+
+
+def free_udp_port(address: str = "127.0.0.1") -> int:
+    """Return a UDP port on `address` that was free just now (the OS picks it)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind((address, 0))
+        return s.getsockname()[1]
+
+
+def free_udp_port_pair(address: str = "127.0.0.1", tries: int = 100) -> int:
+    """Return a port p such that p and p + 1 were both free just now: NatNet's command and data
+    ports (an emulated rig's server and a client that follows the 1510/1511 convention)."""
+    import random
+    for _ in range(tries):
+        port = random.randint(20000, 60000)
+        socks = []
+        try:
+            for p in (port, port + 1):
+                socks.append(socket.socket(socket.AF_INET, socket.SOCK_DGRAM))
+                socks[-1].bind((address, p))
+            return port
+        except OSError:
+            continue
+        finally:
+            for s in socks:
+                s.close()
+    raise OSError(f"no free UDP port pair on {address} after {tries} tries")
 
 
 class NatNetEmulator:
