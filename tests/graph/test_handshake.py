@@ -142,3 +142,24 @@ def test_two_nodes_that_read_each_other_both_get_through(graph):
     finally:
         a.close()
         b.close()
+
+
+def test_missing_readers_names_them_without_blocking_until_their_hello_arrives(graph):
+    """The timer-driven form (linear_actuator): a list of names, empty once each reader's hello
+    is in; a stranger subscribing to everything does not count."""
+    import time
+    with Node("src", heartbeat_s=0, readers={"/biotac/pac": ["estimator", "recorder"]}) as src:
+        src.create_publisher(M.BiotacPac)
+        assert src.missing_readers() == ["estimator", "recorder"]
+        stranger = Node("stranger", heartbeat_s=0)
+        stranger.create_raw_subscription(lambda *a: None)
+        readers = [Node(n, heartbeat_s=0) for n in ("estimator", "recorder")]
+        for r in readers:
+            r.create_subscription(M.BiotacPac, lambda m: None)
+        with Spinner(stranger, *readers):
+            deadline = time.monotonic() + 20
+            while src.missing_readers() and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert src.missing_readers() == []
+        for n in (stranger, *readers):
+            n.close()

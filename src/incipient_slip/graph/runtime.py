@@ -367,16 +367,11 @@ class Node:
         that must not be lost: it says this node's hello too, so two nodes that wait for each
         other both get through."""
         self._say_hello()
-        names = sorted({n for readers in self._readers.values() for n in readers} - {self.name})
-        if not names:
+        if not self._reader_names():
             return True
-        frames = [HELLO + name.encode() for name in names]
         deadline = time.monotonic() + timeout_s
         while True:
-            if time.monotonic() >= self._next_scan:
-                self._discover()      # our own subscriptions must connect too, or we deadlock
-            self._drain_xpub()
-            missing = [n for n, f in zip(names, frames) if not self._sub_counts.get(f)]
+            missing = self._missing_readers()
             if not missing:
                 return True
             left = deadline - time.monotonic()
@@ -386,6 +381,23 @@ class Node:
                               f"starting without them")
                 return False
             self._xpub.poll(min(left, POLL_S) * 1000.0, zmq.POLLIN)
+
+    def missing_readers(self) -> list[str]:
+        """The launch's named readers of this node's outputs that have not subscribed yet, without
+        blocking: for nodes that wait inside a timer (`wait_for_readers` is the blocking form).
+        Says this node's hello the first time."""
+        if not self._said_hello:
+            self._say_hello()
+        return self._missing_readers()
+
+    def _reader_names(self) -> list[str]:
+        return sorted({n for readers in self._readers.values() for n in readers} - {self.name})
+
+    def _missing_readers(self) -> list[str]:
+        if time.monotonic() >= self._next_scan:
+            self._discover()      # our own subscriptions must connect too, or we deadlock
+        self._drain_xpub()
+        return [n for n in self._reader_names() if not self._sub_counts.get(HELLO + n.encode())]
 
     def create_timer(self, period_s: float, callback: Callable[[], Any]) -> Timer:
         """Calls `callback()` every `period_s` seconds (monotonic clock, first call after one period)."""

@@ -9,7 +9,8 @@ absolute target `start_mm + (k + 1) * travel_mm / steps` (absolute targets: no r
 and a lost reply can be resent safely), waits until IDLE, reads the position back and
 publishes `ActuatorState(step_index=k)`: the period tick the grip controller answers. With
 `lockstep: true` step k + 1 waits for the `GripCommand` of period k. Step 0 waits (at most
-`wait_timeout_s`) until the tick has `wait_subscribers` readers, so period 0 is not lost, and
+`wait_timeout_s`) until the readers the launch names for its outputs have subscribed (started by
+hand: until the tick has `wait_subscribers` readers), so period 0 is not lost, and
 with `wait_tare: true` also until the BioTac reader's tare is done (`/biotac/status`), so no
 period runs on an untared P_DC (F_N would read tens of kPa). Period 0 starts when they are: its
 step and tick come one period later.
@@ -65,7 +66,7 @@ class LinearActuator(Node):
         "home_timeout_s": Param(60.0, lo=0.1, hi=600.0, help="homing must finish within this"),
         "lockstep": Param(False, choices=(False, True), help="step k+1 waits for GripCommand(period=k)"),
         "exit_when_done": Param(False, choices=(False, True), help="exit 0 after the last step"),
-        "wait_subscribers": Param(1, lo=0, hi=100, help="step 0 waits for this many readers of the tick"),
+        "wait_subscribers": Param(1, lo=0, hi=100, help="started by hand: step 0 waits for this many readers of the tick"),
         "wait_timeout_s": Param(10.0, lo=0.0, hi=3600.0, help="then starts anyway, with a warning"),
         "wait_tare": Param(False, choices=(False, True), help="step 0 also waits for the BioTac reader's tare"),
     }
@@ -142,12 +143,16 @@ class LinearActuator(Node):
             return
         k = self.k
         if not self._started:
-            short = self.state_pub.subscriber_count() < self.param("wait_subscribers")
+            if self.readers:           # in a launch: the readers it names, by name
+                missing = self.missing_readers()
+                short = f"readers {', '.join(missing)} not subscribed" if missing else ""
+            else:                      # started by hand: a count
+                short = (f"fewer than {self.param('wait_subscribers')} reader(s) of {self.state_pub.topic}"
+                         if self.state_pub.subscriber_count() < self.param("wait_subscribers") else "")
             if (short or not self.tared) and time.monotonic() < self._wait_until:
                 return                 # no step before the tick has its readers (slow joiner)
             if short:
-                self.warn(f"fewer than {self.param('wait_subscribers')} reader(s) of "
-                          f"{self.state_pub.topic} after {self.param('wait_timeout_s'):g} s; starting")
+                self.warn(f"{short} after {self.param('wait_timeout_s'):g} s; starting")
             if not self.tared:
                 self.warn(f"no BioTac tare after {self.param('wait_timeout_s'):g} s; starting")
             self._started = True
