@@ -3,8 +3,9 @@
     python -m incipient_slip.graph.replay path:=run.mcap rate:=2.0
     slip bag play run.mcap --rate 2                 # the same, in the foreground
 
-Before the first message it waits (XPUB handshake, no sleep) until every played topic has
-`wait_subscribers` subscribers, or `wait_timeout_s` passed (then it warns and plays anyway).
+Before the first message it waits (XPUB handshake, no sleep) until the readers the launch names
+have subscribed (started by hand, `slip bag play`: until every played topic has
+`wait_subscribers` subscribers), or `wait_timeout_s` passed (then it warns and plays anyway).
 Pacing follows the messages' stamps, each topic anchored where it starts in receive time,
 so a recording made faster than real time (lock-step sim) plays back at sim time x `rate`;
 `max_speed` drops pacing. Messages go out in the recording's receive order. `/heartbeat` is
@@ -79,6 +80,9 @@ class Replay(Node):
 
     def wait_for_subscribers(self) -> None:
         n, deadline = self.param("wait_subscribers"), time.monotonic() + self.param("wait_timeout_s")
+        if self.readers:      # in a launch: the nodes it names as readers, by their hello
+            self.wait_for_readers(self.param("wait_timeout_s"))
+            return
         if n <= 0:
             return
         lonely = [t for t, pub in self.pubs.items()
