@@ -1,6 +1,5 @@
 """`slip run plot`: the figure of one run summary; bad summaries are one line on stderr, exit 2."""
 import json
-import math
 
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st

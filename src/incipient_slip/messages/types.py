@@ -216,10 +216,9 @@ class SimTruth(Message):
     DESCRIPTION: ClassVar[str] = ("The simulated rig's physical truth at the end of one period "
                                   "(simulated rig only: no sensor measures it)")
     period: int = integer("int64", -1, low=-1, high=STEP_LIMIT, note=_NO_PERIOD)
-    stick_ratio: float = real(float("nan"), nan=True, low=0.0, high=1.0,
-                              note="true load ratio 1 - Q/(mu_s F_N), 0 while sliding")
-    stick_area_ratio: float = real(float("nan"), nan=True, low=0.0, high=1.0,
-                                   note="true (c/a)^2, 0 while sliding")
+    stick_ratio: float = real(float("nan"), nan=True,
+                              note="true load ratio 1 - Q/(mu_s F_N) in [0, 1], 0 while sliding")
+    stick_area_ratio: float = real(float("nan"), nan=True, note="true (c/a)^2 in [0, 1], 0 while sliding")
     tangential_force_n: float = real(float("nan"), unit="N", nan=True, note="spring force F_T")
     gross_slip: bool = flag(False)
 
