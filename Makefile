@@ -13,10 +13,16 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 # One closed-loop run on the simulated rig (rig_sim, estimator, grip_controller, supervisor as
-# separate processes, lock-step). Exit 1 is the run ending on the paper's failure condition, a
-# result of the experiment, reported as such; a crash or fault (any other code) fails the demo.
+# separate processes, lock-step), then its figure from the run summary (an earlier run's summary
+# is removed first; a figure that cannot be drawn is reported and never changes the run's
+# result). Exit 1 is the run ending on the paper's failure condition, a result of the
+# experiment, reported as such; a crash or fault (any other code) fails the demo.
+DEMO_SUMMARY := runs/stabilize_summary.json
+DEMO_FIGURE := runs/stabilize_run.png
 demo: $(STAMP)
-	@$(BIN)/launch stabilize.yaml; code=$$?; \
+	@rm -f $(DEMO_SUMMARY); $(BIN)/launch stabilize.yaml summary:=$(DEMO_SUMMARY); code=$$?; \
+	if [ -f $(DEMO_SUMMARY) ]; then \
+	  $(BIN)/slip run plot $(DEMO_SUMMARY) -o $(DEMO_FIGURE) || echo "demo: no figure (the run's result stands)"; fi; \
 	if [ $$code -eq 1 ]; then \
 	  echo "demo: the graph ran; the run ended on the paper's failure condition, as the simulated rig predicts at its fitted point (docs/validation.md)"; \
 	  exit 0; fi; exit $$code

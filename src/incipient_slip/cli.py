@@ -19,6 +19,7 @@ COMMAND_MODULES = (
     "incipient_slip.sim.cli",            # dataset
     "incipient_slip.models.cli",         # train, evaluate
     "incipient_slip.experiments.cli",    # reproduce NAME|--list
+    "incipient_slip.experiments.run_plot",  # run plot SUMMARY
     "incipient_slip.nodes.device_tools", # robot recover, rig check
 )
 

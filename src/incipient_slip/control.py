@@ -286,7 +286,9 @@ def judge_step(steps_done: int, travel_mm: float, force_kpa: float, consecutive_
     return Verdict()
 
 
-TRACES = ("step", "travel_mm", "force_kpa", "command_kpa", "hold", "stick_ratio_estimate")
+TRACES = ("step", "period", "travel_mm", "force_kpa", "command_kpa", "hold", "stick_ratio_estimate")
+# the simulated rig's truth by period (NaN where none came: replay, hardware), in the summary's traces
+TRUTH_TRACES = ("stick_ratio_true", "tangential_force_n")
 MOCAP_SAMPLE_NS = 1_000_000_000 // MOCAP_RATE_HZ   # the last pose of period k is within one sample of its end
 _KEEP_AHEAD = 8                          # periods of data kept ahead of the one being judged
 NAN = float("nan")
@@ -318,6 +320,7 @@ class RunJudge:
         self.travel: dict[int, tuple[int, float]] = {}         # period -> (stamp, y) of its last pose
         self.force: dict[int, float] = {}
         self.estimates: dict[int, float] = {}
+        self.truth: dict[int, tuple[float, float]] = {}       # period -> (s, F_T), simulated rig
         self.travel_mm = self.force_kpa = NAN                  # as last judged
         self.steps = self.holds = self.consecutive_holds = self.missing = self.dropped = 0
         self.traces: dict[str, list] = {key: [] for key in TRACES}
@@ -340,6 +343,12 @@ class RunJudge:
     def estimate(self, period: int, stick_ratio: float, valid: bool) -> None:
         if self._wanted(self.estimates, period):
             self.estimates[period] = stick_ratio if valid else NAN
+
+    def truth_of(self, period: int, stick_ratio: float, tangential_force_n: float) -> None:
+        """Records the simulated rig's truth of a period: kept for the summary's traces, never
+        judged (it may come after its period is judged; periods far ahead are refused)."""
+        if 0 <= period <= (self.next_period or 0) + _KEEP_AHEAD:
+            self.truth[period] = (stick_ratio, tangential_force_n)
 
     def command(self, period: int, hold_: bool, command_kpa: float, now_s: float) -> str:
         """Takes the command that closes `period`; returns why it was dropped ("" if taken)."""
@@ -378,7 +387,7 @@ class RunJudge:
         self.steps += 1
         self.holds += hold_
         self.consecutive_holds = self.consecutive_holds + 1 if hold_ else 0
-        for key, value in zip(TRACES, (self.steps, self.travel_mm, self.force_kpa, command_kpa,
+        for key, value in zip(TRACES, (self.steps, k, self.travel_mm, self.force_kpa, command_kpa,
                                        hold_, estimate)):
             self.traces[key].append(value)
         known = math.isfinite(self.travel_mm) and math.isfinite(self.force_kpa)
@@ -395,12 +404,15 @@ class RunJudge:
             self.verdict = verdict
 
     def summary(self, **recorded) -> dict:
-        """Return the run summary: verdict, final y and F_N, counts, `recorded` and the traces."""
+        """Return the run summary: verdict, final y and F_N, counts, `recorded` and the traces
+        (one entry per judged period, with the simulated rig's truth of that period)."""
         v = self.verdict
+        truth = [self.truth.get(k, (NAN, NAN)) for k in self.traces["period"]]
+        traces = {**self.traces, **{key: [t[i] for t in truth] for i, key in enumerate(TRUTH_TRACES)}}
         return {"outcome": v.kind, "success": v.kind == "success", "detail": v.detail,
                 "steps": self.steps, "max_steps": self.rules.max_steps,
                 "final_travel_mm": self.travel_mm, "final_force_kpa": self.force_kpa,
-                "holds": self.holds, "dropped_commands": self.dropped, **recorded, "traces": self.traces}
+                "holds": self.holds, "dropped_commands": self.dropped, **recorded, "traces": traces}
 
     def _pose_done(self, k: int) -> bool:
         """The last pose of period k is in: one within a sample of its end, or a later one

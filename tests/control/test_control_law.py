@@ -246,7 +246,7 @@ def test_traces_are_by_period_whatever_the_arrival_order(rnd, periods):
     streams = {"rig": [], "estimator": [], "controller": []}
     for k in range(periods):
         rig, estimate, command = period_messages(k, y=0.1 * k, force=2.0 + 0.1 * k)
-        streams["rig"] += rig
+        streams["rig"] += rig + [("truth_of", k, 0.9 - 0.01 * k, 0.1 * k)]   # the sim's truth last
         streams["estimator"].append(estimate)
         streams["controller"].append(command)
 
@@ -255,10 +255,10 @@ def test_traces_are_by_period_whatever_the_arrival_order(rnd, periods):
         for message in order:
             feed(judge, message)
             judge.close(0.0)
-        return json.dumps(judge.traces)
+        return json.dumps(judge.summary()["traces"])
 
     in_order = [m for k in range(periods) for m in
-                streams["rig"][4 * k:4 * k + 4] + [streams["estimator"][k], streams["controller"][k]]]
+                streams["rig"][5 * k:5 * k + 5] + [streams["estimator"][k], streams["controller"][k]]]
     shuffled, heads = [], {name: 0 for name in streams}
     while any(heads[n] < len(streams[n]) for n in streams):
         name = rnd.choice([n for n in streams if heads[n] < len(streams[n])])
@@ -268,6 +268,26 @@ def test_traces_are_by_period_whatever_the_arrival_order(rnd, periods):
     assert run(shuffled) == run(in_order)
     assert reference["stick_ratio_estimate"] == [0.3 + 0.001 * k for k in range(periods)]
     assert reference["travel_mm"] == [0.1 * k + 0.02 for k in range(periods)]     # the last pose of each
+    # one entry per judged period in every trace, finite, the truth of its own period (even
+    # when it came after its period was judged)
+    assert reference["period"] == list(range(periods))
+    assert reference["stick_ratio_true"] == [0.9 - 0.01 * k for k in range(periods)]
+    assert reference["tangential_force_n"] == [0.1 * k for k in range(periods)]
+    assert {len(trace) for trace in reference.values()} == {periods}
+    assert all(math.isfinite(v) for key, trace in reference.items() if key != "hold" for v in trace)
+
+
+def test_without_the_simulated_rig_the_truth_traces_are_nan_and_far_periods_are_refused():
+    judge = RunJudge(SupervisorRules(max_steps=100))
+    judge.truth_of(10 ** 9, 0.5, 1.0)                 # forged: far ahead, never kept
+    judge.truth_of(-1, 0.5, 1.0)
+    for k in range(3):
+        for m in [m for part in period_messages(k) for m in (part if isinstance(part, list) else [part])]:
+            feed(judge, m)
+        judge.close(0.0)
+    traces = judge.summary()["traces"]
+    assert judge.truth == {} and traces["period"] == [0, 1, 2]
+    assert len(traces["stick_ratio_true"]) == 3 and all(math.isnan(v) for v in traces["stick_ratio_true"])
 
 
 def test_a_period_whose_data_never_come_is_judged_after_the_wait():

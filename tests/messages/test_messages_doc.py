@@ -34,6 +34,7 @@ PINS = {
     "RobotState": (2, "eca2e1a20c0a"),
     "RobotRecover": (1, "1eed3d56f1d3"),
     "SlipEstimate": (1, "855fc9c679be"),
+    "SimTruth": (1, "ab56228d9d3a"),
     "RunEvent": (1, "9d9261d74f5d"),
     "Heartbeat": (1, "0718bc1c3b07"),
 }

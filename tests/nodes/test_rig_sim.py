@@ -10,14 +10,14 @@ import pytest
 
 from incipient_slip import control
 from incipient_slip.messages import (
-    ActuatorState, BiotacPac, BiotacSlow, GripCommand, ObjectPose, PztCommand, PztState, RobotState,
+    ActuatorState, BiotacPac, BiotacSlow, GripCommand, ObjectPose, PztCommand, PztState, RobotState, SimTruth,
 )
 from incipient_slip.nodes.rig_sim import RigSim, pac_frame_stamps_ns, slow_frame_stamps_ns
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.sim.dataset import simulate_series
 from incipient_slip.sim.rig import Rig, load_scene
 
-RECORDED = (BiotacPac, BiotacSlow, ObjectPose, RobotState, ActuatorState, PztState)
+RECORDED = (BiotacPac, BiotacSlow, ObjectPose, RobotState, ActuatorState, PztState, SimTruth)
 
 
 class Controller(Node):
@@ -141,6 +141,10 @@ def test_node_and_in_process_loop_give_identical_data_for_the_same_seed(graph):
     assert [m.step_index for m in ticks] == list(range(steps))
     assert [m.position_mm for m in ticks] == [o.actuator_mm for o in outs]
     assert [m.stamp_ns for m in ticks] == [(k + 1) * 500_000_000 for k in range(steps)]
+    truth = ctl.got[SimTruth]            # the simulator's truth of each period, before its tick
+    assert [(m.period, m.stamp_ns) for m in truth] == [(k, (k + 1) * 500_000_000) for k in range(steps)]
+    assert [(m.stick_ratio, m.stick_area_ratio, m.tangential_force_n, m.gross_slip) for m in truth] == [
+        (o.load_ratio_stick, o.stick_area_ratio, o.tangential_force_n, o.gross_slip) for o in outs]
     assert [m.enabled for m in ctl.got[PztState]] == [True, False]
     assert not outs[pzt_off_after + 1].pzt_on and outs[pzt_off_after].pzt_on
     assert all(sub.gaps == 0 and sub.dropped == 0 for sub in ctl.subs.values())
@@ -191,10 +195,11 @@ def test_lockstep_applies_only_the_awaited_period_and_clamps_to_the_safety_limit
 
 
 @pytest.mark.parametrize("scene, topics", [
-    ("mechanics", ["/actuator/state", "/heartbeat", "/object/pose", "/robot/state"]),
-    ("electrodes_only", ["/actuator/state", "/biotac/slow", "/heartbeat", "/object/pose", "/robot/state"]),
+    ("mechanics", ["/actuator/state", "/heartbeat", "/object/pose", "/robot/state", "/sim/truth"]),
+    ("electrodes_only", ["/actuator/state", "/biotac/slow", "/heartbeat", "/object/pose", "/robot/state",
+                         "/sim/truth"]),
     ("paper", ["/actuator/state", "/biotac/pac", "/biotac/slow", "/heartbeat", "/object/pose",
-               "/pzt/state", "/robot/state"]),
+               "/pzt/state", "/robot/state", "/sim/truth"]),
 ])
 def test_a_scene_publishes_only_the_topics_of_its_effects(graph, scene, topics):
     with RigSim(params={"scene": scene}) as node:           # announced, not started

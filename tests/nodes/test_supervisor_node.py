@@ -1,5 +1,6 @@
 """The supervisor as a real process: it counts periods itself (a forged period is dropped,
-never progress) and writes its summary also when it is interrupted."""
+never progress) and writes its summary, with the per-period traces, also when it is interrupted
+(and that summary plots)."""
 from __future__ import annotations
 
 import json
@@ -8,7 +9,8 @@ import time
 
 from incipient_slip.messages import PERIOD_NS
 from incipient_slip.graph.runtime import Node
-from incipient_slip.messages import GripCommand, Heartbeat, ObjectPose, RobotState, RunEvent, SlipEstimate
+from incipient_slip.experiments.run_plot import load_summary, plot_run
+from incipient_slip.messages import GripCommand, Heartbeat, ObjectPose, RobotState, RunEvent, SimTruth, SlipEstimate
 
 
 class FakeLoop(Node):
@@ -16,7 +18,7 @@ class FakeLoop(Node):
 
     def __init__(self, graph_dir):
         super().__init__("fake_loop", graph_dir=graph_dir, heartbeat_s=0)
-        self.pubs = {t: self.create_publisher(t) for t in (RobotState, ObjectPose, SlipEstimate, GripCommand)}
+        self.pubs = {t: self.create_publisher(t) for t in (RobotState, ObjectPose, SlipEstimate, SimTruth, GripCommand)}
         self.events: list[RunEvent] = []
         self.heard: set[str] = set()
         self.create_subscription(RunEvent, self.events.append)
@@ -36,6 +38,8 @@ class FakeLoop(Node):
                                                  stamp_ns=start + PERIOD_NS - 8_333_333))
         self.pubs[SlipEstimate].publish(SlipEstimate(stick_ratio=0.3, valid=True, method="injection", period=k,
                                                      stamp_ns=start + PERIOD_NS))
+        self.pubs[SimTruth].publish(SimTruth(period=k, stick_ratio=0.9 - 0.1 * k, tangential_force_n=0.2 * k,
+                                             stamp_ns=start + PERIOD_NS))
         self.pubs[GripCommand].publish(GripCommand(normal_force_kpa=force_kpa, period=k))
 
 
@@ -58,5 +62,10 @@ def test_forged_period_is_dropped_and_an_interrupted_run_still_writes_its_summar
     assert result["outcome"] == "interrupted" and not result["success"]
     assert result["steps"] == 2 and result["dropped_commands"] == 1
     assert result["traces"]["step"] == [1, 2] and result["traces"]["stick_ratio_estimate"] == [0.3, 0.3]
+    assert result["traces"]["period"] == [0, 1] and result["traces"]["stick_ratio_true"] == [0.9, 0.8]
+    assert result["traces"]["tangential_force_n"] == [0.0, 0.2]
+    assert {len(trace) for trace in result["traces"].values()} == {2}
+    figure = plot_run(load_summary(summary), tmp_path / "run.png")
+    assert figure.read_bytes().startswith(b"\x89PNG")
     assert "dropped GripCommand(period=4294967295)" in proc.stderr.read().decode()
     node.close()

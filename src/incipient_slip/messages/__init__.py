@@ -14,7 +14,7 @@ from incipient_slip.messages.types import (
     MOCAP_RATE_HZ, PAC_RATE_HZ, PAC_SAMPLES_PER_FRAME, PERIOD_NS, RUN_EVENT_KINDS, SLOW_RATE_HZ,
     ActuatorCommand, ActuatorState, BiotacPac, BiotacSlow, BiotacStatus, BiotacTare, GripCommand,
     Heartbeat, ObjectPose, PztCommand, PztOutput, PztState, RobotRecover, RobotState, RunEvent,
-    SlipEstimate,
+    SimTruth, SlipEstimate,
 )
 
 __all__ = [
@@ -22,7 +22,7 @@ __all__ = [
     "to_plain", "MESSAGE_TYPES", "DEFAULT_TOPICS", "MAX_BODY_BYTES", "MAX_STRING",
     "BiotacPac", "BiotacSlow", "PztCommand", "PztState", "ObjectPose", "ActuatorCommand",
     "ActuatorState", "GripCommand", "RobotState", "RobotRecover", "SlipEstimate", "RunEvent",
-    "Heartbeat",
+    "Heartbeat", "SimTruth",
     "PAC_SAMPLES_PER_FRAME", "ELECTRODE_COUNT", "METHODS", "RUN_EVENT_KINDS",
     "PERIOD_NS", "PAC_RATE_HZ", "SLOW_RATE_HZ", "MOCAP_RATE_HZ",
     "BiotacStatus", "BiotacTare", "PztOutput", "BIOTAC_CHANNELS", "BIOTAC_ERROR_WORDS",

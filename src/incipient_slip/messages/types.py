@@ -211,6 +211,19 @@ class SlipEstimate(Message):
 
 
 @dataclass(frozen=True, eq=False)
+class SimTruth(Message):
+    TOPIC: ClassVar[str] = "/sim/truth"
+    DESCRIPTION: ClassVar[str] = ("The simulated rig's physical truth at the end of one period "
+                                  "(simulated rig only: no sensor measures it)")
+    period: int = integer("int64", -1, low=-1, high=STEP_LIMIT, note=_NO_PERIOD)
+    stick_ratio: float = real(float("nan"), nan=True,
+                              note="true load ratio 1 - Q/(mu_s F_N) in [0, 1], 0 while sliding")
+    stick_area_ratio: float = real(float("nan"), nan=True, note="true (c/a)^2 in [0, 1], 0 while sliding")
+    tangential_force_n: float = real(float("nan"), unit="N", nan=True, note="spring force F_T")
+    gross_slip: bool = flag(False)
+
+
+@dataclass(frozen=True, eq=False)
 class RunEvent(Message):
     TOPIC: ClassVar[str] = "/run/event"
     DESCRIPTION: ClassVar[str] = "Run lifecycle: start, step, success, failure, fault, end"
@@ -235,6 +248,6 @@ class Heartbeat(Message):
 MESSAGE_TYPES: dict[str, type[Message]] = {
     cls.__name__: cls for cls in (
         BiotacPac, BiotacSlow, BiotacStatus, BiotacTare, PztCommand, PztState, PztOutput, ObjectPose, ActuatorCommand, ActuatorState,
-        GripCommand, RobotState, RobotRecover, SlipEstimate, RunEvent, Heartbeat)
+        GripCommand, RobotState, RobotRecover, SlipEstimate, SimTruth, RunEvent, Heartbeat)
 }
 DEFAULT_TOPICS: dict[str, type[Message]] = {cls.TOPIC: cls for cls in MESSAGE_TYPES.values()}

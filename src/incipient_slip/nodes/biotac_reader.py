@@ -50,6 +50,7 @@ class BiotacReader(Node):
                                   "read /biotac/pac (recordings and tests lose no first frame)"),
     }
     INPUTS = {"/biotac/tare": BiotacTare}
+    OPTIONAL_INPUTS = frozenset({"/biotac/tare"})      # an operator's re-tare (`slip topic pub`), not the launch's
     # /heartbeat: the runtime's own publisher, refused by the INPUTS/OUTPUTS check unless declared
     OUTPUTS = {"/biotac/pac": BiotacPac, "/biotac/slow": BiotacSlow, "/biotac/status": BiotacStatus,
                "/heartbeat": Heartbeat}

@@ -46,6 +46,7 @@ class PztInjector(Node):
         "seed": Param(0, lo=0, help="seed of the noise"),
     }
     INPUTS = {"/pzt/command": PztCommand, "/heartbeat": Heartbeat}
+    OPTIONAL_INPUTS = frozenset({"/pzt/command"})      # the launch sets the injection; a command may switch it
     OUTPUTS = {"/pzt/state": PztState, "/pzt/output": PztOutput, "/heartbeat": Heartbeat}
 
     def __init__(self, **kwargs):

@@ -4,8 +4,9 @@
 
 Each 500 ms period k is one `sim.Rig.step_period` call (the same call the in-process data set
 generator makes) and goes out as 50 `BiotacPac`, 50 `BiotacSlow`, 60 `ObjectPose`, one
-`RobotState` (the F_N applied) and one `ActuatorState(step_index=k)` stamped at the period's
-end, in stamp order, all with sim stamps (docs/design.md, "Time base"). Only the streams of the
+`RobotState` (the F_N applied), one `SimTruth` (the simulator's true stick ratio and F_T, which no
+sensor measures; for the supervisor's run trace) and one `ActuatorState(step_index=k)`, the last
+two stamped at the period's end, in stamp order, all with sim stamps (docs/design.md, "Time base"). Only the streams of the
 scene's effects are published: no P_AC without a vibration effect, no `BiotacSlow` without
 electrodes / P_DC / temperature, no `ObjectPose` without mocap, no `PztState` without injection.
 
@@ -22,8 +23,8 @@ from the next period on; `injection_db` (default: the scene's) sets it at the st
 
 Before period 0 it waits for the readers of its topics that the launch names
 (`Node.wait_for_readers`, from the nodes' declared INPUTS); started by hand (no launch), until
-each topic of `wait_topics` (default: all it publishes) has `wait_subscribers` subscribers. After
-`wait_timeout_s` it warns and starts.
+each topic of `wait_topics` (default: all it publishes but `/sim/truth`) has `wait_subscribers`
+subscribers. After `wait_timeout_s` it warns and starts.
 
 `lockstep: true`: it starts period k+1 only when `GripCommand(period=k)` has arrived (in
 `collection` the command is only the go-ahead, its force is not used). No command within
@@ -46,7 +47,7 @@ from incipient_slip import control
 from incipient_slip.errors import EXIT_FAULT
 from incipient_slip.messages import (
     PAC_RATE_HZ, PAC_SAMPLES_PER_FRAME, PERIOD_NS, ActuatorState, BiotacPac, BiotacSlow, GripCommand, ObjectPose, PztCommand, PztState,
-    RobotState,
+    RobotState, SimTruth,
 )
 from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
@@ -77,7 +78,7 @@ class RigSim(Node):
 
     INPUTS = {GripCommand.TOPIC: GripCommand, PztCommand.TOPIC: PztCommand}
     OPTIONAL_INPUTS = frozenset({PztCommand.TOPIC})     # the scene sets the injection; a command may switch it
-    OUTPUTS = {t.TOPIC: t for t in (BiotacPac, BiotacSlow, ObjectPose, PztState, RobotState, ActuatorState)}
+    OUTPUTS = {t.TOPIC: t for t in (BiotacPac, BiotacSlow, ObjectPose, PztState, RobotState, SimTruth, ActuatorState)}
     PARAMS = {
         "scene": Param("paper", help="scene file or name (scenes/)"),
         "material": Param("", help='object material ("": the scene\'s first)'),
@@ -130,6 +131,7 @@ class RigSim(Node):
         self.pose_pub = self.create_publisher(ObjectPose) if has("mocap") else None
         self.pzt_pub = self.create_publisher(PztState) if has("injection") else None
         self.robot_pub = self.create_publisher(RobotState)
+        self.truth_pub = self.create_publisher(SimTruth)
         self.tick_pub = self.create_publisher(ActuatorState)
         self.create_subscription(GripCommand, self.on_grip)
         self.create_subscription(PztCommand, self.on_pzt)
@@ -330,6 +332,11 @@ class RigSim(Node):
                       RobotState(normal_force_kpa=out.normal_force_kpa, stamp_ns=start)))
         items.sort(key=lambda item: item[0])     # stable: P_AC before slow at equal stamps
         end = (k + 1) * PERIOD_NS
+        items.append((end, self.truth_pub,
+                      SimTruth(period=k, stick_ratio=float(out.load_ratio_stick),
+                               stick_area_ratio=float(out.stick_area_ratio),
+                               tangential_force_n=float(out.tangential_force_n),
+                               gross_slip=bool(out.gross_slip), stamp_ns=end)))
         items.append((end, self.tick_pub,
                       ActuatorState(position_mm=out.actuator_mm, step_index=k, stamp_ns=end)))
         return items

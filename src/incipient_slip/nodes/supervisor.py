@@ -9,7 +9,9 @@ periods succeed; a command whose period is not the next one is dropped. No comma
 wall-clock timeout is a fault ("graph silent"). `period_origin: tick` (device clocks, host-time
 stamps): pose and F_N stamps are taken on the period clock that the actuator's first tick sets
 (`control.PeriodOrigin`), as the estimator does. It publishes `RunEvent`s, writes the JSON run
-summary (also when interrupted), prints one screen and exits 0 (success), 1 (failure) or 3 (fault).
+summary (also when interrupted) with the per-period traces (`/sim/truth`, the simulated rig's true
+stick ratio and F_T, goes into the traces only, never into a verdict; `slip run plot` draws them),
+prints one screen and exits 0 (success), 1 (failure) or 3 (fault).
 """
 from __future__ import annotations
 
@@ -21,7 +23,7 @@ from pathlib import Path
 from incipient_slip import control
 from incipient_slip.graph.params import Param
 from incipient_slip.graph.runtime import Node, run_node
-from incipient_slip.messages import RUN_EVENT_KINDS, ActuatorState, BiotacSlow, GripCommand, ObjectPose, PztState, RobotState, RunEvent, SlipEstimate
+from incipient_slip.messages import RUN_EVENT_KINDS, ActuatorState, BiotacSlow, GripCommand, ObjectPose, PztState, RobotState, RunEvent, SimTruth, SlipEstimate
 
 POSITIVE = dict(lo=1e-3)
 RECORDED = ("method", "s_d", "k", "seed", "material", "rig")     # params copied into the summary
@@ -30,7 +32,8 @@ RECORDED = ("method", "s_d", "k", "seed", "material", "rig")     # params copied
 class Supervisor(Node):
     """Judges each period of a run and writes the run summary when it ends."""
 
-    INPUTS = {t.TOPIC: t for t in (ObjectPose, RobotState, SlipEstimate, GripCommand, PztState, ActuatorState)}
+    INPUTS = {t.TOPIC: t for t in (ObjectPose, RobotState, SlipEstimate, GripCommand, PztState, ActuatorState, SimTruth)}
+    OPTIONAL_INPUTS = frozenset({SimTruth.TOPIC})     # only the simulated rig knows the truth
     OUTPUTS = {RunEvent.TOPIC: RunEvent}
     PARAMS = {
         "summary_path": Param("runs/stabilize_summary.json", help='run summary JSON ("": none)'),
@@ -69,6 +72,7 @@ class Supervisor(Node):
         self.create_subscription(RobotState, lambda m: self.on_rig(self.judge.robot, m.stamp_ns, m.normal_force_kpa))
         self.create_subscription(SlipEstimate, lambda m: self.judge.estimate(m.period, m.stick_ratio, m.valid))
         self.create_subscription(PztState, lambda m: setattr(self, "pzt_on", m.enabled))
+        self.create_subscription(SimTruth, lambda m: self.judge.truth_of(m.period, m.stick_ratio, m.tangential_force_n))
         self.create_subscription(GripCommand, self.on_command)
         # rig_sim starts period 0 once every topic it publishes has a subscriber (handshake);
         # the slow channels may have no other reader (injection), so count them here, undecoded

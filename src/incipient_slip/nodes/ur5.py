@@ -291,6 +291,7 @@ class UR5(Node):
 
     INPUTS = {GripCommand.TOPIC: GripCommand, BiotacSlow.TOPIC: BiotacSlow,
               RobotRecover.TOPIC: RobotRecover}
+    OPTIONAL_INPUTS = frozenset({RobotRecover.TOPIC})   # sent by `slip robot recover`, not by the launch
     OUTPUTS = {RobotState.TOPIC: RobotState}
     PARAMS = {
         "rig_config": Param("", help="config/rig.yaml: unset parameters from its ur5 section"),
