@@ -52,6 +52,7 @@ def test_bad_options_are_named_errors(opts, needle, tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(400)      # ~60 s on a quiet machine, ~180 s seen under load 8-10
 def test_results_do_not_depend_on_the_worker_count(tmp_path):
     from incipient_slip.experiments.settings import Settings
     tables = []
