@@ -274,7 +274,7 @@ def judge_step(steps_done: int, travel_mm: float, force_kpa: float, consecutive_
         return Verdict("fault", f"non-finite measurement y={travel_mm} F_N={force_kpa}")
     if rules.end_on_failure:
         if travel_mm > rules.max_travel_mm:
-            return Verdict("failure", f"y = {travel_mm:.3f} mm > {rules.max_travel_mm} mm (gross slip)")
+            return Verdict("failure", f"y = {travel_mm:.3f} mm > {rules.max_travel_mm} mm (the paper's travel limit)")
         if force_kpa >= rules.safety_limit_kpa - 1e-9:
             return Verdict("failure", f"F_N = {force_kpa:.3f} kPa reached the safety limit "
                                       f"{rules.safety_limit_kpa} kPa")

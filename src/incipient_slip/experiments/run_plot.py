@@ -69,7 +69,7 @@ def load_summary(path: Path) -> dict:
 
 
 def outcome_line(summary: dict) -> str:
-    """Return e.g. 'FAILURE: y = 1.612 mm > 1.5 mm (gross slip); 37 / 450 steps'."""
+    """Return e.g. 'FAILURE: y = 1.612 mm > 1.5 mm (the paper's travel limit); 37 / 450 steps'."""
     detail = summary.get("detail") or ""
     steps = f"{summary.get('steps', len(summary['traces']['period']))} / {summary.get('max_steps', control.MAX_STEPS)} steps"
     return f"{summary['outcome'].upper()}" + (f": {detail}" if detail else "") + f"; {steps}"
