@@ -75,11 +75,19 @@ def outcome_line(summary: dict) -> str:
     return f"{summary['outcome'].upper()}" + (f": {detail}" if detail else "") + f"; {steps}"
 
 
+PLOTTABLE = 1e6        # larger trace values are not drawn (no rig produces them)
+
+
 def plot_run(summary: dict, path: Path) -> Path:
     """Write the three-panel figure of one run summary (as `load_summary` returns it) to `path`."""
     plt = pyplot()
     from matplotlib.ticker import MaxNLocator
-    tr = summary["traces"]
+    # a value no rig produces (a hand-edited 1e308) cannot be drawn: matplotlib's transforms
+    # overflow. Such values are left out, and the figure says how many.
+    tr = {k: (v if k == "hold" else [x if math.isfinite(x) and abs(x) < PLOTTABLE else math.nan for x in v])
+          for k, v in summary["traces"].items()}
+    n_dropped = sum(1 for k, v in summary["traces"].items() if k != "hold"
+                    for x in v if math.isfinite(x) and abs(x) >= PLOTTABLE)
     x = tr["period"]
     s_d = summary.get("s_d")
     s_d = float(s_d) if isinstance(s_d, (int, float)) and math.isfinite(s_d) else None
@@ -111,12 +119,15 @@ def plot_run(summary: dict, path: Path) -> Path:
     ax_y.axhline(control.FAILURE_TRAVEL_MM, color="tab:red", ls="--", lw=1.0,
                  label=f"failure limit {control.FAILURE_TRAVEL_MM:g} mm")
     # the axis spans the plausible travels (a hand-edited 1e308 would make the limits infinite)
-    finite_y = [v for v in tr["travel_mm"] if math.isfinite(v) and abs(v) < 1e6]
+    finite_y = [v for v in tr["travel_mm"] if math.isfinite(v)]
     ax_y.set_ylim(min([0.0, *finite_y]) - 0.05, max([control.FAILURE_TRAVEL_MM * 1.25, *finite_y]) * 1.05)
     ax_y.set_ylabel("y [mm]")
     ax_y.set_xlabel("period (500 ms each)")
     if not x:
         ax_s.text(0.5, 0.5, "no period was judged", transform=ax_s.transAxes, ha="center", va="center")
+    if n_dropped:
+        ax_y.text(0.01, 0.95, f"{n_dropped} value(s) beyond ±{PLOTTABLE:g} not drawn", transform=ax_y.transAxes,
+                  ha="left", va="top", fontsize=8, color="tab:red")
     for ax in (ax_s, ax_f, ax_y):
         ax.grid(alpha=0.3)
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
