@@ -18,3 +18,20 @@ def test_a_bad_graph_name_is_one_line_and_exit_2(monkeypatch, capsys, tool, how)
     assert tools.main(argv) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"slip topic {tool[0]}: error: graph name 'a+b'" in err
+
+
+@pytest.mark.timeout(30)
+def test_echo_with_nothing_running_says_it_is_waiting_instead_of_hanging_silently(tmp_path):
+    import os
+    import subprocess
+    import sys
+    env = dict(os.environ, SLIP_GRAPH_DIR=str(tmp_path / "empty-graph"))
+    proc = subprocess.Popen([sys.executable, "-m", "incipient_slip.cli", "topic", "echo", "/slip/estimate"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        out, err = proc.communicate(timeout=tools.NOTHING_YET_S + 3)
+    except subprocess.TimeoutExpired:
+        proc.terminate()
+        out, err = proc.communicate(timeout=10)
+    assert out == ""
+    assert "no message on /slip/estimate yet in graph" in err and "empty-graph" in err

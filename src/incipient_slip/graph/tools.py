@@ -92,6 +92,9 @@ def _yaml_value(value) -> str:
     return json.dumps(value)
 
 
+NOTHING_YET_S = 3.0       # slip topic echo says it is still waiting after this long without a message
+
+
 class TopicEcho(Node):
     """Prints each message on `topic` (YAML documents, or JSON lines), `count` times (0: forever)."""
 
@@ -101,6 +104,13 @@ class TopicEcho(Node):
         super().__init__("slip_topic_echo", **kwargs)
         self.printed = 0
         self.create_raw_subscription(self.on_message, self.param("topic"))
+        self.create_timer(NOTHING_YET_S, self.say_if_silent)
+
+    def say_if_silent(self) -> None:
+        """One line on stderr while nothing arrived, so an empty graph is not a silent hang."""
+        if not self.printed:
+            self.warn(f"no message on {self.param('topic')} yet in graph {self._dir} "
+                      f"(is a launch running there?); waiting", throttle_s=30.0)
 
     def on_message(self, topic: str, body: bytes, recv_ns: int) -> None:
         try:
