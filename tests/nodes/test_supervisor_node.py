@@ -69,3 +69,18 @@ def test_forged_period_is_dropped_and_an_interrupted_run_still_writes_its_summar
     assert figure.read_bytes().startswith(b"\x89PNG")
     assert "dropped GripCommand(period=4294967295)" in proc.stderr.read().decode()
     node.close()
+
+
+def test_a_run_that_judged_no_period_keeps_the_earlier_summary(graph, tmp_path):
+    """A launch that dies before period 0 (an unknown material, no devices) must not replace the
+    last real run's summary with an empty one."""
+    summary = tmp_path / "run.json"
+    summary.write_text('{"outcome": "success", "steps": 450}')
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.supervisor", "max_steps:=3", "method:=injection",
+                        f"summary_path:={summary}", "quiet:=true"])
+    node = FakeLoop(graph.dir)
+    node.spin_until(lambda: "supervisor" in node.heard, proc)
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(10) == 0
+    assert json.loads(summary.read_text()) == {"outcome": "success", "steps": 450}
+    assert "no period was judged" in proc.stderr.read().decode()

@@ -125,6 +125,9 @@ class Supervisor(Node):
         self.summary = j.summary(pzt_on=self.pzt_on, wall_s=round(time.monotonic() - self.started, 3),
                                  **{key: self.param(key) for key in RECORDED})
         path = self.param("summary_path")
+        if path and j.steps == 0 and Path(path).exists():
+            path = ""       # a run that judged no period must not replace the last real run's summary
+            self.warn(f"no period was judged: {self.param('summary_path')} (an earlier run's) is kept")
         if path:
             Path(path).parent.mkdir(parents=True, exist_ok=True)
             tmp = Path(f"{path}.tmp{os.getpid()}")
