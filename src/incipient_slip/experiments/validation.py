@@ -139,6 +139,7 @@ def closed_loop(method: str, params: dict, material: str, seed: int, model, step
 
 
 SWEEP_SD = (0.3, 0.5, 0.7, 0.8)
+CONTROLLED = tuple(m for m in TABLE_METHODS if m != "none") + ("oracle",)   # the methods that act on F_N
 # stage-1 refit per point: (collection series, no-action runs per material, evaluations); the second
 # only when the first cannot meet T1-T4 (an open-loop rule, the same for every point)
 REFITS = ((25, 2, 25), (50, 3, 40))
@@ -254,7 +255,10 @@ def run(settings) -> dict:
         raise UsageError("--sweep-at needs the joint results: add --joint, or --keep a results file that has them")
 
     def table_future(name, overrides, fit=None):
-        sweep = opt("sweep_runs") or 3 if name in sweep_at else (0 if name in grid else opt("sweep_runs", 0))
+        if name in sweep_at:
+            sweep = opt("sweep_runs") or 3
+        else:                 # a joint point's Table has no sweep unless it is --sweep-at
+            sweep = 0 if name in grid else opt("sweep_runs", 0)
         return client.submit(point_task, name, overrides, runs, n_series, steps, settings.seed, str(work),
                              sweep, opt("refits"), fit,
                              key=f"validation-{_slug(name)}-{settings.seed}-sweep{sweep}", pure=False)
@@ -322,7 +326,7 @@ def _figure(points: dict, fig_dir: Path) -> str:
     from incipient_slip.experiments.plots import pyplot, save
     plt = pyplot()
 
-    methods = [m for m in TABLE_METHODS if m != "none"] + ["oracle"]
+    methods = list(CONTROLLED)
     grid = np.array([[points[p]["table"][m]["success"] for m in methods] for p in points], float)
     fig, ax = plt.subplots(figsize=(8, 0.5 * len(points) + 1.8))
     im = ax.imshow(grid, vmin=0, vmax=1, cmap="viridis", aspect="auto")
@@ -348,7 +352,7 @@ def _joint_figure(joint: dict, fig_dir: Path) -> str:
 
     kb, kl, km = JOINT
     betas, lags, spreads = (joint["axes"][k] for k in (kb, kl, km))
-    methods = [m for m in TABLE_METHODS if m != "none"] + ["oracle"]
+    methods = list(CONTROLLED)
     by_key = {(p["overrides"][kb], p["overrides"][kl], p["overrides"][km]): p for p in joint["points"].values()}
     fig, axes = plt.subplots(1, len(spreads), figsize=(4.2 * len(spreads), 0.9 * len(betas) * len(methods) / 4 + 2),
                              sharey=True, squeeze=False, layout="constrained")
@@ -411,6 +415,11 @@ def trajectory_figure(params: dict, models: dict, material: str, seed: int, fig_
     return name
 
 
+def _outcome(t: dict) -> str:
+    """A method's cell: success rate (mean final y, mean final F_N)."""
+    return f"{t['success']:.1f} ({t['y']:.2f} mm, {t['fn']:.1f} kPa)"
+
+
 def _cell(v, fmt="{:.2f}") -> str:
     return "–" if v is None else fmt.format(v)
 
@@ -439,7 +448,7 @@ def render(results: dict) -> dict:
                       f"*Simulated rig, not a measurement: `{f}` (the shipped models, trained on the fitted "
                       f"simulator; the paper's trajectory shape is held out).*"]
         blocks["validation-fitted"] = "\n".join(lines)
-    methods = [m for m in TABLE_METHODS if m != "none"] + ["oracle"]
+    methods = list(CONTROLLED)
     if results.get("joint"):
         blocks["validation-joint"] = _render_joint(results, head, methods)
     if not pts:
@@ -450,7 +459,7 @@ def render(results: dict) -> dict:
         v = p["fit"]["values"]
         lines.append(f"| {name} | {'yes' if p['consistent'] else 'no'} | {v['pre_slip.bulk_shear_n_per_mm']:.3f} | "
                      f"{v['stick_slip.spring_n_per_mm']:.4f} | " + " | ".join(
-                         f"{p['table'][m]['success']:.1f} ({p['table'][m]['y']:.2f} mm, {p['table'][m]['fn']:.1f} kPa)"
+                         _outcome(p['table'][m])
                          for m in methods) + " |")
     lines += ["", "Cells: success rate (mean final y, mean final F_N).", "",
               f"![simulated rig: success over the uncertainty set](figures/{results['figure']})",
@@ -466,7 +475,7 @@ def render(results: dict) -> dict:
         for name, t in sw.items():
             for m, by_sd in t.items():
                 lines.append(f"| {name} | {LABELS[m]} | " + " | ".join(
-                    f"{by_sd[str(sd)]['success']:.1f} ({by_sd[str(sd)]['y']:.2f} mm, {by_sd[str(sd)]['fn']:.1f} kPa)"
+                    _outcome(by_sd[str(sd)])
                     for sd in SWEEP_SD) + " |")
         lines += ["", "Cells: success rate (mean final y, mean final F_N)."]
         blocks["validation-sweep"] = "\n".join(lines)
@@ -491,8 +500,7 @@ def _render_joint(results: dict, head: str, methods: list) -> str:
     for n, p in ok.items():
         v = p["fit"]["values"]
         lines.append(f"| {n} | {v['pre_slip.bulk_shear_n_per_mm']:.3f} | {v['stick_slip.spring_n_per_mm']:.4f} | "
-                     + " | ".join(f"{p['table'][m]['success']:.1f} ({p['table'][m]['y']:.2f} mm, "
-                                  f"{p['table'][m]['fn']:.1f} kPa)" for m in methods) + " |")
+                     + " | ".join(_outcome(p['table'][m]) for m in methods) + " |")
     if results.get("joint_figure"):
         f = results["joint_figure"]
         lines += ["", f"![simulated rig: success over the joint uncertainty set](figures/{f})",

@@ -18,15 +18,15 @@ def _scene(name: str):
 
 def cmd_dataset(args) -> int:
     """Write a data set; return an exit code."""
-    from ..cluster import check_scheduler, open_client
+    from ..cluster import check_scheduler, check_workers, open_client
     from .dataset import write_dataset
 
     scene = _scene(args.scene)
     check_scheduler(args.scheduler)
     if args.series < 1:
         raise UsageError(f"--series must be >= 1, got {args.series}")
-    if args.workers is not None and args.workers < 1:
-        raise UsageError(f"--workers must be >= 1, got {args.workers}")
+    if args.workers is not None:
+        check_workers(args.workers)
     if not 1 <= args.steps <= 100000:
         raise UsageError(f"--steps must be in 1..100000, got {args.steps}")
     out = Path(args.out)
