@@ -24,7 +24,7 @@ demo: $(STAMP)
 	if [ -f $(DEMO_SUMMARY) ]; then \
 	  $(BIN)/slip run plot $(DEMO_SUMMARY) -o $(DEMO_FIGURE) || echo "demo: no figure (the run's result stands)"; fi; \
 	if [ $$code -eq 1 ]; then \
-	  echo "demo: the graph ran; the run ended on the paper's failure condition, as the simulated rig predicts at its fitted point (docs/validation.md)"; \
+	  echo "demo: the graph ran; the run ended on the paper's failure condition (a result of the experiment on the simulated rig; docs/validation.md gives how often at the fitted point)"; \
 	  exit 0; fi; exit $$code
 
 # make test: everything but the tests marked slow (tens of seconds each), two workers (each test

@@ -88,12 +88,30 @@ def test_unusable_numbers_never_move_the_force(s, start):
         assert decision.hold and decision.normal_force_kpa == start
 
 
-def test_supervisor_fails_on_travel_and_force_and_succeeds_at_450():
+def test_supervisor_follows_the_papers_protocol_stop_at_the_force_limit_judge_the_end_state():
     rules = SupervisorRules()
-    assert judge_step(10, 1.51, 3.0, 0, rules).kind == "failure"
-    assert judge_step(10, 1.0, 6.0, 0, rules).kind == "failure"
+    assert judge_step(10, 1.51, 3.0, 0, rules).kind == ""            # y past 1.5 mm mid-run: keep going
+    assert judge_step(10, 1.0, 6.0, 0, rules).kind == "failure"      # the F_N limit stops the run
     assert judge_step(10, 1.0, 3.0, 0, rules).kind == ""
     assert judge_step(450, 1.0, 3.0, 0, rules).kind == "success"
+    assert judge_step(450, 1.5, 5.99, 0, rules).kind == "success"    # the limits are inclusive of 1.5 mm
+    end = judge_step(450, 1.52, 4.5, 0, rules)                       # judged on the end state
+    assert end.kind == "failure" and "final y = 1.520" in end.detail
+
+
+def test_stop_on_travel_ends_at_the_first_y_past_the_limit():
+    rules = SupervisorRules(stop_on_travel=True)
+    v = judge_step(10, 1.51, 3.0, 0, rules)
+    assert v.kind == "failure" and "travel limit" in v.detail
+    assert judge_step(10, 1.0, 6.0, 0, rules).kind == "failure"
+    assert judge_step(450, 1.0, 3.0, 0, rules).kind == "success"
+
+
+@given(st.integers(1, 450), st.floats(-10, 50), st.floats(0, 6.5))
+def test_a_run_that_ended_early_ended_at_the_force_limit(steps, y, fn):
+    v = judge_step(steps, y, fn, 0, SupervisorRules())
+    if v.ended and steps < 450:
+        assert v.kind == "failure" and fn >= 6.0 - 1e-9
 
 
 def test_supervisor_faults_on_repeated_holds():

@@ -40,15 +40,20 @@ VIBRATION = ("contact", "stick_slip", "fingertip_modes", "injection", "vibrotact
 NO_ACTION_KPA = 2.94
 # the pre-registered targets (docs/calibration.md): id -> (what, paper value, tolerance text, weight)
 TARGETS = {
-    "T1": ("onset travel, mean [mm]", 1.5, "1.3 .. 1.7", 1.0),
+    "T1": ("onset travel at the start of the slide, mean [mm]", 1.5, "1.3 .. 1.7", 1.0),
     "T2": ("onset travel, spread (SD) [mm]", 0.4, "0.2 .. 0.6", 0.5),
     "T3": ("collection series with gross slip within 23 mm", 1.0, ">= 0.99", 10.0),
-    "T4": ("no-action final y at 2.94 kPa, pooled [mm]", 2.48, "1.98 .. 2.98", 1.0),
+    "T4": ("T4': no-action at 2.94 kPa: final y pooled [mm]; fraction of runs with gross slip", 2.48,
+           "1.98 .. 2.98; slid >= 0.6", 1.0),
     "T5": ("200 Hz band vs F_T in stick: one sign, median |R|", 0.97, ">= 0.9, one sign", 0.2),
     "P1": ("F_N channel / stick channel of the 150-250 Hz band (prior)", None, "<= 0.5", 0.2),
     "T6": ("estimation pattern (quick SVR study)", None, "all five items", 0.5),
+    "T7": ("deformable range: y at the start of the slide, slow ramp at constant F_N [mm]", 1.5, "1.1 .. 1.9 at every level", 1.0),
 }
-FITTED = (("pre_slip", "bulk_shear_n_per_mm"), ("stick_slip", "spring_n_per_mm"))
+FITTED = (("pre_slip", "bulk_shear_n_per_mm"), ("stick_slip", "spring_n_per_mm"), ("pre_slip", "bulk_stiffening_exponent"),
+          ("stick_slip", "mu_spread_scale"))
+# bounds of the linear coordinates (beta, friction spread) of stage 1
+BOUNDS = {FITTED[2]: (-0.5, 2.0), FITTED[3]: (0.1, 1.5)}
 FN_GAIN_GRID = (0.0, 0.1, 0.2, 0.3, 0.5, 1.0)
 
 
@@ -61,6 +66,11 @@ def add_arguments(parser) -> None:
                         help="series per simulated data set of the T6 estimation pattern (quick 40, full 100)")
     parser.add_argument("--skip-estimation", dest="skip_estimation", action="store_true",
                         help="skip stage 2's estimation pattern (T6) and the electrode grid")
+    parser.add_argument("--electrode-grid", dest="electrode_grid", action="store_true",
+                        help="re-grid the electrode nuisance amplitudes on T6 (27 estimation studies); default: "
+                             "check T6 at the params file's values")
+    parser.add_argument("--skip-beta-interval", dest="skip_beta_interval", action="store_true",
+                        help="skip the scan of the beta interval that the open-loop targets allow")
     parser.add_argument("--scene", default="paper", help="scene to calibrate (default paper)")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                         help="fix a parameter before fitting (a point of the uncertainty set), repeatable")
@@ -104,93 +114,262 @@ def parse_overrides(items) -> dict:
 
 # --- stage 1: mechanics ------------------------------------------------------------------------
 
+RANGE_LEVELS_KPA = (1.1, 2.3, 3.5, 4.7, 5.9)   # T7: constant F_N levels of the slow ramp
+RANGE_MAX_STEPS = 2000                          # T7: the ramp goes on past 23 mm until the slide
+RANGE_BAND_MM = (1.1, 1.9)                      # T7: the deformable range 1.5 +/- 0.4 mm at every level
+LABEL_BINS_KPA = (1.1, 2.0, 3.5, 5.0, 6.0)      # label - truth reported by these F_N bins
+
+
+class SlideTracker:
+    """Follows a rig period by period: where the slide under way started (true y at the instant
+    the anchor began to move) and the paper's gross-slip rule on mocap for the period just run."""
+
+    def __init__(self, rig):
+        self.rig = rig
+        self.start_y = math.nan      # y where the slide under way started
+        self.prev_sliding = False
+
+    def push(self, out) -> tuple[float, bool]:
+        """Return (y at the start of the slide under way or nan, the label rule fires this period)."""
+        from incipient_slip.models.labels import GROSS_SLIP_MM, gross_slip_travel_mm
+        st = self.rig.state
+        if out.gross_slip and not self.prev_sliding:
+            # the slide begins at the period start, with the spring at Q0: y = u - Q0 / k_s
+            self.start_y = out.actuator_mm - st.slide_q0_n / self.rig.k
+        elif not out.gross_slip:
+            self.start_y = math.nan
+        self.prev_sliding = out.gross_slip and st.sliding
+        rule = False
+        if out.mocap_y_mm is not None:
+            end = np.array([out.t_start_s + self.rig.period_s])
+            rule = bool(gross_slip_travel_mm(out.mocap_t_s, out.mocap_y_mm, end)[0] >= GROSS_SLIP_MM)
+        return self.start_y, rule
+
+
 def onset_travel(scene: Scene, n_series: int, seed: int) -> dict:
-    """Return onset travel (true y in the period before the label rule's onset) per series, and
-    which series slipped, from collection series on the mechanics (materials round robin)."""
-    from incipient_slip.models.labels import gross_slip_travel_mm, pseudo_stick_ratio
+    """Return, per collection series (materials round robin), the onset travel under the three
+    readings of T1 (docs/calibration.md, amendment 2), whether it slipped, the F_N (and the friction
+    limit's effective F_N) of the onset period, and label - truth pairs by F_N for the label report."""
     from incipient_slip.sim.protocols import run_collection
     from incipient_slip.sim.rig import Rig, series_seed
     mech = with_effects(scene, MECHANICS)
     mats = scene.materials
-    travel, slipped, material, jump = [], [], [], []
+    rows = {k: [] for k in ("start", "prev", "end", "slipped", "material", "jump", "onset_fn", "onset_f_eff")}
+    label_err = []   # (F_N kPa, pseudo label - true load ratio) for every period before the onset
+    kpa_n = scene.params["contact"]["newton_per_kpa"]
     for i in range(n_series):
         mat = mats[i % len(mats)]
         rig = Rig(mech, mat, series_seed(seed, i))
-        outs = list(run_collection(rig))
-        t = np.concatenate([o.mocap_t_s for o in outs])
-        y = np.concatenate([o.mocap_y_mm for o in outs])
-        end = np.array([o.t_start_s + rig.period_s for o in outs])
-        ft = np.array([o.tangential_force_n for o in outs])
-        ytrue = np.array([o.object_y_mm for o in outs])
-        k = pseudo_stick_ratio(ft, gross_slip_travel_mm(t, y, end)).gross_slip_index
-        slipped.append(k >= 0)
-        travel.append(float(ytrue[k - 1]) if k > 0 else math.nan)
-        material.append(mat)
-        jump.append(float(np.max(np.diff(np.concatenate([[0.0], ytrue])))))
-    return {"travel_mm": travel, "slipped": slipped, "material": material, "max_period_travel_mm": jump}
+        track = SlideTracker(rig)
+        ys, fts, fns, truth, k_on, start_on, f_eff = [], [], [], [], -1, math.nan, math.nan
+        for out in run_collection(rig):
+            start, rule = track.push(out)
+            ys.append(out.object_y_mm)
+            fts.append(out.tangential_force_n)
+            fns.append(out.normal_force_kpa)
+            truth.append(out.load_ratio_stick)
+            if rule and k_on < 0:
+                k_on, start_on, f_eff = len(ys) - 1, start, rig.friction_force_n / kpa_n
+        rows["slipped"].append(k_on >= 0)
+        rows["material"].append(mat)
+        rows["start"].append(float(start_on) if k_on >= 0 else math.nan)
+        rows["prev"].append(float(ys[k_on - 1]) if k_on > 0 else math.nan)
+        rows["end"].append(float(ys[k_on]) if k_on >= 0 else math.nan)
+        rows["onset_fn"].append(float(fns[k_on]) if k_on >= 0 else math.nan)
+        rows["onset_f_eff"].append(float(f_eff))
+        rows["jump"].append(float(np.max(np.diff(np.concatenate([[0.0], ys])))))
+        if k_on > 0:
+            ft_slip = max(fts[: k_on + 1])
+            for j in range(k_on):
+                label_err.append((fns[j], (1.0 - fts[j] / ft_slip if ft_slip > 0 else 0.0) - truth[j]))
+    rows["label_err"] = label_err
+    return rows
+
+
+def deformable_range(scene: Scene, levels, runs: int, seed: int) -> dict:
+    """Return T7: y at the start of the label rule's gross slide under the paper's slow ramp at
+    constant F_N, {level: [per run, materials round robin]} (nan when no slide within the ramp)."""
+    from incipient_slip.sim.rig import Rig, series_seed
+    mech = with_effects(scene, MECHANICS)
+    mats = scene.materials
+    out = {}
+    for li, fn in enumerate(levels):
+        vals = []
+        for j in range(runs * len(mats)):
+            rig = Rig(mech, mats[j % len(mats)], series_seed(seed, 1000 * li + j))
+            track = SlideTracker(rig)
+            y0 = math.nan
+            for _ in range(RANGE_MAX_STEPS):
+                start, rule = track.push(rig.step_period(fn))
+                if rule:
+                    y0 = start
+                    break
+            vals.append(float(y0))
+        out[float(fn)] = vals
+    return out
 
 
 def no_action(scene: Scene, runs: int, seed: int) -> dict:
-    """Return the final y (mm) of `runs` no-action runs (constant 2.94 kPa, 450 steps) per material."""
+    """Return per material the no-action runs (constant 2.94 kPa, 450 steps): final y, whether the
+    paper's rule saw gross slip, and the final y split into slide (anchor) and pad shear."""
     from incipient_slip.sim.protocols import run_constant
     from incipient_slip.sim.rig import Rig, series_seed
-    mech = with_effects(scene, ("contact", "stick_slip"))
-    return {mat: [float(list(run_constant(Rig(mech, mat, series_seed(seed, 100 * mi + j)), NO_ACTION_KPA))[-1]
-                        .object_y_mm) for j in range(runs)]
-            for mi, mat in enumerate(scene.materials)}
+    mech = with_effects(scene, MECHANICS)
+    res = {}
+    for mi, mat in enumerate(scene.materials):
+        rows = []
+        for j in range(runs):
+            rig = Rig(mech, mat, series_seed(seed, 100 * mi + j))
+            track = SlideTracker(rig)
+            slid, last = False, None
+            for last in run_constant(rig, NO_ACTION_KPA):
+                slid = track.push(last)[1] or slid
+            rows.append({"y": float(last.object_y_mm), "slid": slid, "slide_mm": float(rig.state.anchor_mm),
+                         "shear_mm": float(rig.state.bulk_mm + rig.state.interfacial_mm)})
+        res[mat] = rows
+    return res
 
 
-def mechanics_summary(scene: Scene, n_series: int, runs: int, seed: int) -> dict:
-    """Return the stage-1 quantities T1-T4 (and per-material detail)."""
+def _nanstat(values, fn) -> float:
+    a = np.asarray(values, float)
+    return float(fn(a[np.isfinite(a)])) if np.isfinite(a).any() else math.nan
+
+
+def label_report(pairs) -> list[dict]:
+    """Return label - true load ratio by F_N bin (mean, SD, n) from (F_N, error) pairs."""
+    if not pairs:
+        return []
+    fn, err = np.array(pairs, float).T
+    rows = []
+    for lo, hi in zip(LABEL_BINS_KPA[:-1], LABEL_BINS_KPA[1:]):
+        m = (fn >= lo - 1e-9) & (fn < hi - 1e-9)
+        if m.any():
+            rows.append({"bin": f"{lo:g}-{hi:g} kPa", "mean": float(err[m].mean()), "sd": float(err[m].std()),
+                         "n": int(m.sum())})
+    return rows
+
+
+def mechanics_summary(scene: Scene, n_series: int, runs: int, seed: int, range_runs: int = 1) -> dict:
+    """Return the stage-1 quantities T1-T4', T7 (with per-material detail, the other T1 readings and
+    the label's statistics)."""
     on = onset_travel(scene, n_series, seed)
     na = no_action(scene, runs, seed + 1)
-    tr = np.array(on["travel_mm"], float)
-    return {"T1": float(np.nanmean(tr)) if np.isfinite(tr).any() else math.nan,
-            "T2": float(np.nanstd(tr)) if np.isfinite(tr).any() else math.nan,
+    rng = deformable_range(scene, RANGE_LEVELS_KPA, range_runs, seed + 2)
+    pooled = [r for rows in na.values() for r in rows]
+
+    def by_material(key):
+        return {m: _nanstat([v for v, mm in zip(on[key], on["material"]) if mm == m], np.mean) for m in scene.materials}
+
+    fns = np.array(on["onset_fn"], float)
+    fns = fns[np.isfinite(fns)]
+    return {"T1": _nanstat(on["start"], np.mean), "T2": _nanstat(on["start"], np.std),
+            "T1_prev": _nanstat(on["prev"], np.mean), "T1_end": _nanstat(on["end"], np.mean),
             "T3": float(np.mean(on["slipped"])),
-            "T4": float(np.mean([np.mean(v) for v in na.values()])),
-            "no_action_by_material": {m: float(np.mean(v)) for m, v in na.items()},
-            "onset_by_material": {m: float(np.nanmean([t for t, mm in zip(on["travel_mm"], on["material"]) if mm == m]))
-                                  if any(mm == m and math.isfinite(t) for t, mm in zip(on["travel_mm"], on["material"]))
-                                  else math.nan for m in scene.materials},
-            "max_period_travel_mm": float(np.max(on["max_period_travel_mm"]))}
+            "T4": float(np.mean([np.mean([r["y"] for r in rows]) for rows in na.values()])),
+            "T4_slid": float(np.mean([r["slid"] for r in pooled])),
+            "no_action_by_material": {m: float(np.mean([r["y"] for r in rows])) for m, rows in na.items()},
+            "no_action_slid_by_material": {m: float(np.mean([r["slid"] for r in rows])) for m, rows in na.items()},
+            "no_action_split": {m: (float(np.mean([r["slide_mm"] for r in rows])),
+                                    float(np.mean([r["shear_mm"] for r in rows]))) for m, rows in na.items()},
+            "T7": {f"{lvl:g}": _nanstat(v, np.mean) for lvl, v in rng.items()},
+            "T7_missing": int(sum(not math.isfinite(x) for v in rng.values() for x in v)),
+            "onset_by_material": by_material("start"),
+            "onset_fn_counts": {f"{v:g}": int(np.sum(np.isclose(fns, v))) for v in np.unique(np.round(fns, 1))},
+            "onset_f_eff_mean_kpa": _nanstat(on["onset_f_eff"], np.mean),
+            "label_error_by_fn": label_report(on["label_err"]),
+            "max_period_travel_mm": float(np.max(on["jump"]))}
+
+
+def range_ok(mm: float) -> bool:
+    return math.isfinite(mm) and RANGE_BAND_MM[0] <= mm <= RANGE_BAND_MM[1]
+
+
+def consistent_with_open_loop(summ: dict) -> bool:
+    """Whether a stage-1 summary meets the pre-registered tolerances of T1-T4' and T7 (amendment 2)."""
+    return (abs(summ["T1"] - 1.5) <= 0.2 and abs(summ["T2"] - 0.4) <= 0.2 and summ["T3"] >= 0.99
+            and abs(summ["T4"] - 2.48) <= 0.5 and summ["T4_slid"] >= 0.6
+            and all(range_ok(v) for v in summ["T7"].values()))
 
 
 def mechanics_objective(summary: dict) -> float:
-    """Return the weighted stage-1 objective (reads only T1-T4 and their pre-registered weights)."""
+    """Return the weighted stage-1 objective (reads only T1-T4', T7 and their pre-registered weights)."""
     if not math.isfinite(summary["T1"]):
         return 1e6
     j = TARGETS["T1"][3] * ((summary["T1"] - 1.5) / 0.2) ** 2
     j += TARGETS["T2"][3] * ((summary["T2"] - 0.4) / 0.2) ** 2
     j += TARGETS["T3"][3] * max(0.0, 0.99 - summary["T3"]) * 100.0
     j += TARGETS["T4"][3] * ((summary["T4"] - 2.48) / 0.5) ** 2
+    j += 10.0 * max(0.0, 0.6 - summary["T4_slid"]) * 10.0
+    for v in summary["T7"].values():
+        if not math.isfinite(v):
+            j += 25.0
+        else:
+            j += TARGETS["T7"][3] * (max(0.0, RANGE_BAND_MM[0] - v, v - RANGE_BAND_MM[1]) / 0.2) ** 2
     return float(j)
 
 
-def fit_mechanics(scene: Scene, n_series: int, runs: int, seed: int, maxfev: int, progress: bool = True) -> dict:
-    """Return the fitted stage-1 values, the summary at them and the optimizer's trace."""
+def _point(x) -> dict:
+    """Optimizer coordinates (log k_b, log k_s, beta, friction spread) -> {(section, key): value}."""
+    return {FITTED[0]: float(math.exp(x[0])), FITTED[1]: float(math.exp(x[1])), FITTED[2]: float(x[2]),
+            FITTED[3]: float(x[3])}
+
+
+def fit_mechanics(scene: Scene, n_series: int, runs: int, seed: int, maxfev: int, progress: bool = True,
+                  range_runs: int = 1, stiffness_only: bool = False) -> dict:
+    """Return the fitted stage-1 values, the summary at them and the optimizer's trace.
+
+    `stiffness_only` keeps the scene's beta and friction spread (a point of the uncertainty set) and
+    refits k_b and k_s only."""
     from scipy import optimize
-    x0 = np.log([scene.params[s][k] for s, k in FITTED])
+    x_all = np.array([math.log(scene.params[s][k]) for s, k in FITTED[:2]]
+                     + [float(scene.params[s][k]) for s, k in FITTED[2:]])
+    free = 2 if stiffness_only else len(FITTED)
     trace = []
 
+    def values_of(x):
+        return _point([*x, *x_all[len(x):]])
+
     def f(x):
-        sc = with_values(scene, {key: float(math.exp(v)) for key, v in zip(FITTED, x)})
-        summ = mechanics_summary(sc, n_series, runs, seed)
+        vals = values_of(x)
+        if any(not lo <= vals[key] <= hi for key, (lo, hi) in BOUNDS.items()):
+            return 1e6
+        summ = mechanics_summary(with_values(scene, vals), n_series, runs, seed, range_runs)
         j = mechanics_objective(summ)
-        trace.append((*np.exp(x).tolist(), j))
+        trace.append((*vals.values(), j))
         if progress:
-            print(f"  [{len(trace):3d}] k_b {math.exp(x[0]):.4f} N/mm, k_s {math.exp(x[1]):.5f} N/mm: "
-                  f"T1 {summ['T1']:.2f} T2 {summ['T2']:.2f} T3 {summ['T3']:.2f} T4 {summ['T4']:.2f} -> J {j:.3f}",
-                  flush=True)
+            print(f"  [{len(trace):3d}] k_b {vals[FITTED[0]]:.4f} N/mm, k_s {vals[FITTED[1]]:.5f} N/mm, "
+                  f"beta {vals[FITTED[2]]:.3f}, mu spread {vals[FITTED[3]]:.3f}: T1 {summ['T1']:.2f} T2 {summ['T2']:.2f} "
+                  f"T3 {summ['T3']:.2f} T4 {summ['T4']:.2f} (slid {summ['T4_slid']:.2f}) T7 "
+                  + "/".join(f"{v:.2f}" for v in summ["T7"].values()) + f" -> J {j:.3f}", flush=True)
         return j
 
+    x0 = x_all[:free]
+    steps = np.array((0.1, 0.05, 0.1, 0.1))[:free]
+    simplex = [x0] + [x0 + np.eye(free)[i] * steps[i] for i in range(free)]
     res = optimize.minimize(f, x0, method="Nelder-Mead",
-                            options={"maxfev": maxfev, "xatol": 0.01, "fatol": 0.01,
-                                     "initial_simplex": [x0, x0 + [0.3, 0.0], x0 + [0.0, 0.15]]})
-    values = {key: float(math.exp(v)) for key, v in zip(FITTED, res.x)}
-    summ = mechanics_summary(with_values(scene, values), n_series, runs, seed)
+                            options={"maxfev": maxfev, "xatol": 0.01, "fatol": 0.01, "initial_simplex": simplex})
+    values = values_of(res.x)
+    summ = mechanics_summary(with_values(scene, values), n_series, runs, seed, range_runs)
     return {"values": {f"{s}.{k}": v for (s, k), v in values.items()}, "summary": summ,
             "objective": mechanics_objective(summ), "evaluations": len(trace), "trace": trace}
+
+
+def beta_interval(scene: Scene, n_series: int, runs: int, seed: int, grid=(0.5, 0.75, 1.0, 1.25),
+                  maxfev: int = 25, progress: bool = True) -> list[dict]:
+    """Return, per beta on `grid`, the refit of k_b and k_s and whether T1-T4' and T7 can be met:
+    the interval of beta that the open-loop targets allow."""
+    rows = []
+    for b in grid:
+        sc = with_values(scene, {FITTED[2]: float(b)})
+        fit = fit_mechanics(sc, n_series, runs, seed, maxfev, progress=False, stiffness_only=True)
+        s = fit["summary"]
+        rows.append({"beta": float(b), "k_b": fit["values"]["pre_slip.bulk_shear_n_per_mm"],
+                     "k_s": fit["values"]["stick_slip.spring_n_per_mm"], "J": fit["objective"],
+                     "T7": s["T7"], "consistent": consistent_with_open_loop(s)})
+        if progress:
+            print(f"  beta {b:g}: J {fit['objective']:.2f}, T7 " + "/".join(f"{v:.2f}" for v in s["T7"].values())
+                  + (" (consistent)" if rows[-1]["consistent"] else ""), flush=True)
+    return rows
 
 
 # --- stage 2: vibration path ---------------------------------------------------------------------
@@ -337,17 +516,24 @@ def _tick(ok: bool) -> str:
 
 def target_rows(mech: dict, vib: dict) -> list[dict]:
     """Return the target-by-target rows: id, what, paper, simulated, tolerance, within."""
+    t7 = mech["T7"]
     return [
-        {"id": "T1", "paper": "1.5", "sim": f"{mech['T1']:.2f}", "tol": TARGETS["T1"][2], "ok": abs(mech["T1"] - 1.5) <= 0.2},
+        {"id": "T1", "paper": "1.5", "sim": f"{mech['T1']:.2f} (other readings: end of the period before the onset "
+         f"{mech['T1_prev']:.2f}, end of the onset period {mech['T1_end']:.2f})",
+         "tol": TARGETS["T1"][2], "ok": abs(mech["T1"] - 1.5) <= 0.2},
         {"id": "T2", "paper": "0.4", "sim": f"{mech['T2']:.2f}", "tol": TARGETS["T2"][2], "ok": abs(mech["T2"] - 0.4) <= 0.2},
         {"id": "T3", "paper": "all", "sim": f"{mech['T3']:.2f}", "tol": TARGETS["T3"][2], "ok": mech["T3"] >= 0.99},
-        {"id": "T4", "paper": "2.48", "sim": f"{mech['T4']:.2f} (" + ", ".join(
-            f"{m} {v:.2f}" for m, v in mech["no_action_by_material"].items()) + ")",
-         "tol": TARGETS["T4"][2], "ok": abs(mech["T4"] - 2.48) <= 0.5},
+        {"id": "T4", "paper": "2.48, gross slip", "sim": f"{mech['T4']:.2f}, slid {mech['T4_slid']:.2f} (" + ", ".join(
+            f"{m} {v:.2f} mm = slide {mech['no_action_split'][m][0]:.2f} + shear {mech['no_action_split'][m][1]:.2f}"
+            f"{'' if mech['no_action_slid_by_material'][m] else ' (no slide)'}"
+            for m, v in mech["no_action_by_material"].items()) + ")",
+         "tol": TARGETS["T4"][2], "ok": abs(mech["T4"] - 2.48) <= 0.5 and mech["T4_slid"] >= 0.6},
         {"id": "T5", "paper": "R = 0.97", "sim": f"median |R| {vib['T5']:.2f}, sign {vib['T5_sign']}"
          f"{'' if vib['T5_one_sign'] else ' (MIXED signs)'} ({vib['T5_range'][0]:.2f}..{vib['T5_range'][1]:.2f})",
          "tol": TARGETS["T5"][2], "ok": vib["T5"] >= 0.9 and vib["T5_one_sign"]},
         {"id": "P1", "paper": "barely suppressed", "sim": f"{vib['P1']:.2f}", "tol": TARGETS["P1"][2], "ok": vib["P1"] <= 0.5},
+        {"id": "T7", "paper": "1.5 +/- 0.4", "sim": ", ".join(f"{k} kPa {v:.2f}" for k, v in t7.items()),
+         "tol": TARGETS["T7"][2], "ok": all(range_ok(v) for v in t7.values())},
     ]
 
 
@@ -376,6 +562,12 @@ def run(settings) -> dict:
               f"per evaluation, at most {maxfev} evaluations (simulated rig)", flush=True)
     mech = fit_mechanics(scene, n_series, runs, settings.seed, maxfev, settings.progress)
     scene = with_values(scene, {tuple(k.split(".")): v for k, v in mech["values"].items()})
+    betas = []
+    if not opt("skip_beta_interval", False):
+        if settings.progress:
+            print("stage 1b (the interval of beta that T1-T4' and T7 allow; k_b and k_s refitted per beta)", flush=True)
+        betas = beta_interval(scene, max(20, n_series // 2), max(1, runs // 2), settings.seed,
+                              maxfev=settings.pick(8, 15), progress=settings.progress)
     fn = fit_fn_channel(scene, settings.seed)
     scene = with_values(scene, {("fingertip_modes", "fn_channel_gain"): fn["value"]})
     if settings.progress:
@@ -389,24 +581,34 @@ def run(settings) -> dict:
         if settings.progress:
             print(f"stage 2 (estimation pattern T6): electrode grid {ELECTRODE_GRID}, {n_est} series per data set",
                   flush=True)
-        el = fit_electrodes(scene, n_est, settings.seed + 11, Path(settings.work) / "data", settings.progress)
+        el = (fit_electrodes(scene, n_est, settings.seed + 11, Path(settings.work) / "data", settings.progress)
+              if opt("electrode_grid", False) else
+              check_pattern(scene, n_est, settings.seed + 11, Path(settings.work) / "data", settings.progress))
         items = el["items"]
         rows.append({"id": "T6", "paper": "pattern (a)-(e)", "sim": "; ".join(
             f"({k}) {'pass' if ok else 'FAIL'}: {detail}" for k, (ok, detail) in items.items()),
             "tol": "all five items", "ok": all(ok for ok, _ in items.values())})
     stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d")
     prov = (f"fitted (slip reproduce calibration, {stamp}, budget {settings.budget}, seed {settings.seed}, "
-            f"{n_series} collection series, {runs} no-action runs per material; Nelder-Mead, objective J "
-            f"{mech['objective']:.3f} on T1-T4 of docs/calibration.md)")
+            f"{n_series} collection series, {runs} no-action runs per material, T7 ramps at 5 levels; Nelder-Mead, "
+            f"objective J {mech['objective']:.3f} on T1-T4', T7 of docs/calibration.md, amendment 2)")
+    t7_betas = [r["beta"] for r in betas if all(range_ok(v) for v in r["T7"].values())]
+    b_range = (f"; T7 allows beta {min(t7_betas):g}..{max(t7_betas):g} on the grid {[r['beta'] for r in betas]} "
+               f"(k_b, k_s refitted per beta)" if t7_betas else "; no beta of the grid meets T7" if betas else "")
     fitted = {"pre_slip.bulk_shear_n_per_mm": (mech["values"]["pre_slip.bulk_shear_n_per_mm"],
-                                               prov + ": onset travel T1/T2"),
+                                               prov + ": onset travel T1/T2 at the start of the slide, T7"),
+              "pre_slip.bulk_stiffening_exponent": (mech["values"]["pre_slip.bulk_stiffening_exponent"],
+                                                    prov + ": the deformable range T7 across 1.1-5.9 kPa" + b_range),
               "stick_slip.spring_n_per_mm": (mech["values"]["stick_slip.spring_n_per_mm"],
-                                             prov + ": no-action final y T4, with T3 as a constraint"),
+                                             prov + ": no-action final y and slide T4', with T3 as a constraint"),
+              "stick_slip.mu_spread_scale": (mech["values"]["stick_slip.mu_spread_scale"],
+                                             prov + ": bounded by T4' (a wide spread leaves high-friction materials "
+                                             "unslid and low-friction ones far past 2.48 mm; amendment 2a); range 0.1-1.5"),
               "fingertip_modes.fn_channel_gain": (fn["value"], f"prior 0.3 (paper: the biomimetic structure barely "
                                                   f"suppresses propagation by normal force), bounded by P1 <= 0.5 on the grid "
                                                   f"{list(FN_GAIN_GRID)} (slip reproduce calibration, {stamp}); the data bound it, "
                                                   f"they do not pin it")}
-    if el is not None:
+    if el is not None and opt("electrode_grid", False):
         eprov = (f"fitted (slip reproduce calibration, {stamp}, budget {settings.budget}): documented grid "
                  f"{ELECTRODE_GRID} on the estimation pattern T6 (0.5 per failed item, ties to the smaller amplitude)")
         fitted["electrodes.core_stiction_ratio"] = (el["core_stiction_ratio"], eprov + "; prior range 0-0.3")
@@ -421,6 +623,7 @@ def run(settings) -> dict:
         written = str(path)
     return {"fitted": {k: v[0] for k, v in fitted.items()}, "provenance": {k: v[1] for k, v in fitted.items()},
             "fixed": {f"{s}.{k}": v for (s, k), v in fixed.items()}, "mechanics": mech, "fn_channel": fn,
+            "beta_interval": betas,
             "vibration": vib, "electrodes": el, "targets": rows, "figure": figure, "params_written": written, "budget": settings.budget,
             "all_within": all(r["ok"] for r in rows)}
 
@@ -437,6 +640,21 @@ def render(results: dict) -> dict:
     if results.get("fixed"):
         lines += ["", "Fixed for this fit: " + ", ".join(f"`{k}` = {v}" for k, v in results["fixed"].items())]
     m = results["mechanics"]["summary"]
+    if results.get("beta_interval"):
+        lines += ["", "The interval of beta (k_b and k_s refitted at each beta; T7 levels 1.1/2.3/3.5/4.7/5.9 kPa):", "",
+                  "| beta | k_b [N/mm at 1 N] | k_s [N/mm] | T7 [mm] | meets T7 | objective | meets every target |",
+                  "|---|---|---|---|---|---|---|"]
+        for r in results["beta_interval"]:
+            lines.append(f"| {r['beta']:g} | {r['k_b']:.3f} | {r['k_s']:.4f} | "
+                         + "/".join(f"{v:.2f}" for v in r["T7"].values())
+                         + f" | {_tick(all(range_ok(v) for v in r['T7'].values()))} | {r['J']:.2f} | {_tick(r['consistent'])} |")
+        lines += ["", "(With the smaller refit of this scan, 30 series and 2 no-action runs per material, T2 is what "
+                  "fails where T7 is met: see the fitted point's T2.)"]
+    lines += ["", "The pseudo label under the simulated collection protocol (reported, not fitted): onset periods by F_N "
+              + ", ".join(f"{k} kPa: {v}" for k, v in m["onset_fn_counts"].items())
+              + f" (the friction limit's effective F_N there {m['onset_f_eff_mean_kpa']:.2f} kPa on average); "
+              "label - true load ratio by F_N: "
+              + ", ".join(f"{r['bin']} {r['mean']:+.2f} (SD {r['sd']:.2f})" for r in m["label_error_by_fn"]) + "."]
     lines += ["", "Onset travel by material (mm): " + ", ".join(f"{k} {v:.2f}" for k, v in m["onset_by_material"].items())
               + f"; largest travel within one period: {m['max_period_travel_mm']:.2f} mm."]
     if results.get("figure"):
@@ -525,3 +743,17 @@ def fit_electrodes(scene: Scene, n_series: int, seed: int, work: Path, progress:
     j, values, scores, items = best
     return {**values, "objective": j, "grid": rows,
             "scores": scores, "items": {k: [bool(v[0]), v[1]] for k, v in items.items()}}
+
+
+def check_pattern(scene: Scene, n_series: int, seed: int, work: Path, progress: bool) -> dict:
+    """Return T6 at the params file's electrode amplitudes (one study per scene, no grid)."""
+    from incipient_slip.sim.scene import load_scene
+    vib = _study(scene, "paper", ("injection",), n_series, seed, work, progress)
+    vt = _study(dataclasses.replace(load_scene("no_injection"), params=scene.params), "no_injection",
+                ("vibrotactile",), n_series, seed, work, progress)
+    el = _study(dataclasses.replace(load_scene("electrodes_only"), params=scene.params), "electrodes",
+                ELECTRODE_METHODS, n_series, seed, work, progress)
+    scores = {**vib, **vt, **el}
+    items = pattern_items(scores)
+    return {**{k: scene.params["electrodes"][k] for k in ELECTRODE_GRID}, "objective": pattern_objective(items),
+            "grid": [], "scores": scores, "items": {k: [bool(v[0]), v[1]] for k, v in items.items()}}

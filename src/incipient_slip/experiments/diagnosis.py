@@ -10,8 +10,8 @@ training collection series (the `models` experiment's data set, labelled by `mod
 and the simulator's true load ratio 1 − Q / (μ_s F_N) (`load_ratio_stick`).
 
 Runs: (1) the closed loop of injection (scene paper) and E19 (scene electrodes_only) as in
-`launch stabilize.yaml` (s_d 0.3, k 2, F_N from 2.9 kPa, ends at y > 1.5 mm or F_N at the
-limit); (2) the oracle loop (the same law on the true load ratio, scene paper) with both models
+`launch stabilize.yaml` (s_d 0.3, k 2, F_N from 2.9 kPa; the paper's protocol: ends at the F_N
+limit or after all steps, judged on the end state); (2) the oracle loop (the same law on the true load ratio, scene paper) with both models
 evaluated on its windows; (3) actuator held, F_N stepped 2 → 5 kPa at fixed F_T.
 """
 from __future__ import annotations
@@ -121,8 +121,10 @@ def closed_loop(method: str, material: str, seed: int, models: dict, ft_slip: fl
         rows.append(record(out, ests, ft_slip, rig.state))
         drive = out.load_ratio_stick if oracle else ests[method]
         fn = control.next_force(fn, drive, params, problem="" if np.isfinite(drive) else "filling").normal_force_kpa
-        if out.object_y_mm > control.FAILURE_TRAVEL_MM or fn >= control.SAFETY_LIMIT_KPA - 1e-9:
-            rows[-1]["end"] = "y > 1.5 mm" if out.object_y_mm > control.FAILURE_TRAVEL_MM else "F_N at 6.0 kPa"
+        verdict = control.judge_step(len(rows), out.object_y_mm, fn, 0, control.SupervisorRules(max_steps=steps))
+        if verdict.ended:          # the paper's protocol: the F_N limit, or the end state after all steps
+            rows[-1]["end"] = ("F_N at 6.0 kPa" if fn >= control.SAFETY_LIMIT_KPA - 1e-9 else
+                               "y > 1.5 mm at the end" if out.object_y_mm > control.FAILURE_TRAVEL_MM else "held")
             break
     return rows
 

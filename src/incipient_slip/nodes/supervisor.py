@@ -26,7 +26,7 @@ from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.messages import RUN_EVENT_KINDS, ActuatorState, BiotacSlow, GripCommand, ObjectPose, PztState, RobotState, RunEvent, SimTruth, SlipEstimate
 
 POSITIVE = dict(lo=1e-3)
-RECORDED = ("method", "s_d", "k", "seed", "material", "rig")     # params copied into the summary
+RECORDED = ("method", "s_d", "k", "seed", "material", "rig", "stop_on_travel")     # params copied into the summary
 
 
 class Supervisor(Node):
@@ -43,6 +43,8 @@ class Supervisor(Node):
         "max_consecutive_holds": Param(3, lo=1, help="holds in a row that are a fault"),
         "max_missing_periods": Param(3, lo=1, help="periods in a row without y or F_N before a verdict"),
         "end_on_failure": Param(True, help="false: run all steps and report (the paper's no action)"),
+        "stop_on_travel": Param(False, help="true: end at the first y > max_travel_mm; false (the paper's "
+                                            "protocol): run to the F_N limit or max_steps and judge the end state"),
         "startup_timeout_s": Param(60.0, **POSITIVE, help="wall clock until the first grip command (s)"),
         "silence_timeout_s": Param(5.0, **POSITIVE, help="wall clock between two grip commands (s)"),
         "data_wait_s": Param(3.0, **POSITIVE, help="longest wait for a period's data after its command (s)"),
@@ -58,7 +60,7 @@ class Supervisor(Node):
         super().__init__("supervisor", **kwargs)
         p = self.param
         rules = control.SupervisorRules(p("max_travel_mm"), p("safety_limit_kpa"), p("max_steps"),
-                                        p("max_consecutive_holds"), p("end_on_failure"))
+                                        p("max_consecutive_holds"), p("end_on_failure"), p("stop_on_travel"))
         self.judge = control.RunJudge(rules, p("max_missing_periods"), estimates_drive=p("method") != "none",
                                       data_wait_s=p("data_wait_s"))
         self.started = self.last_command = time.monotonic()
