@@ -81,10 +81,12 @@ def test_gross_slip_period_has_zero_stick_ratio_and_positive_travel():
     first = next(o for o in outs if o.gross_slip)
     before = outs[first.period_index - 1]
     assert before.load_ratio_stick < 0.1 and first.load_ratio_stick == 0.0
-    # creep (simulator v2): the slide starts gently and settles at the actuator's pace, which the
-    # paper's 0.02 mm per period rule sees within a few periods
-    later = outs[first.period_index + 5]
-    assert later.object_y_mm - outs[first.period_index + 4].object_y_mm > 0.02
+    # creep: once sliding, the object follows the actuator's pace on average (23/450 mm per period;
+    # the period-to-period friction jitter can make single periods stick), which the paper's
+    # 0.02 mm per period rule sees
+    k = first.period_index
+    pace = (outs[k + 20].object_y_mm - outs[k].object_y_mm) / 20
+    assert 0.02 < pace < 0.1
     assert first.object_y_mm > before.object_y_mm
 
 
