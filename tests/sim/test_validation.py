@@ -58,7 +58,7 @@ def test_summary_and_render_label_the_simulated_rig():
 
 @pytest.mark.parametrize("opts, needle", [({"runs": 0}, "--runs"), ({"scheduler": "localhost:8786"}, "--scheduler"),
                                           ({"sweep_at": ["beta 7, lag 0, mu spread 1"]}, "not a point of the joint set"),
-                                          ({"sweep_at": ["beta 1, lag 1, mu spread 0.4"]}, "needs the joint results")])
+                                          ({"sweep_at": ["beta 1, lag 1, mu spread 0.7"]}, "needs the joint results")])
 def test_bad_options_are_named_errors(opts, needle, tmp_path):
     from incipient_slip.experiments.settings import Settings
     with pytest.raises(UsageError, match=needle):
