@@ -455,8 +455,8 @@ def render(results: dict) -> dict:
         if results.get("trajectory"):
             f = results["trajectory"]
             lines += ["", f"![simulated rig: one controlled run per method](figures/{f})",
-                      f"*Simulated rig, not a measurement: `{f}` (the shipped models, trained on the fitted "
-                      f"simulator; the paper's trajectory shape is held out).*"]
+                      f"*Simulated rig, not a measurement: `{f}` (the Table's first run at the fitted point, "
+                      f"with the models trained at that point; the paper's trajectory shape is held out).*"]
         blocks["validation-fitted"] = "\n".join(lines)
     blocks["validation-answer"] = render_answer(results)
     methods = list(CONTROLLED)
