@@ -29,6 +29,13 @@ def effective_moduli_mpa(p: dict, object_modulus_mpa: float) -> tuple[float, flo
     return e_star, g_star
 
 
+def interfacial_shear_modulus_mpa(p: dict, object_modulus_mpa: float) -> float:
+    """Return G* (MPa) of the skin's surface layer on the object, for the interfacial Mindlin part."""
+    nu = p["skin_poisson"]
+    g_obj = object_modulus_mpa / (2 * (1 + nu))
+    return 1.0 / ((2 - nu) / p["interfacial_shear_modulus_mpa"] + (2 - nu) / g_obj)
+
+
 def hertz_radius_mm(normal_force_n: float, radius_mm: float, e_star_mpa: float) -> float:
     """Return the Hertz contact radius a_H = (3 F R / 4 E*)^(1/3) in mm (0 without contact)."""
     return float(math.cbrt(3.0 * max(normal_force_n, 0.0) * radius_mm / (4.0 * e_star_mpa)))

@@ -18,7 +18,7 @@ from .scene import Scene
 
 
 def material_mu(params: dict, material: str) -> float:
-    """Return the material's friction coefficient after the friction spread (as `Rig` draws it, without jitter)."""
+    """Return the material's friction coefficient after the friction spread (`Rig` adds its jitter to it)."""
     mats = params["materials"]
     mu_mean = float(np.mean([m["mu_static"] for m in mats.values()]))
     return mu_mean + params["stick_slip"]["mu_spread_scale"] * (mats[material]["mu_static"] - mu_mean)
@@ -35,8 +35,7 @@ def end_load_travel_mm(scene: Scene, material: str, force_kpa: float, travel_mm:
         return math.nan
     mat = p["materials"][material]
     mu = material_mu(p, material)
-    nu = c["skin_poisson"]
-    g_star = 1.0 / ((2 - nu) / c["interfacial_shear_modulus_mpa"] + (2 - nu) / (mat["object_modulus_mpa"] / (2 * (1 + nu))))
+    g_star = contact.interfacial_shear_modulus_mpa(c, mat["object_modulus_mpa"])
     e_star, _ = contact.effective_moduli_mpa(c, mat["object_modulus_mpa"])
     a = contact.contact_radius_mm(f, contact.effective_radius_mm(c), e_star, c["contact_saturation_radius_mm"])
     k_b = contact.bulk_shear_stiffness_n_per_mm(ps["bulk_shear_n_per_mm"], f, ps["bulk_ref_force_n"],

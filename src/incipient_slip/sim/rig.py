@@ -22,6 +22,7 @@ import numpy as np
 from . import adc, contact, stick_slip
 from .ambient_noise import AmbientNoise
 from .electrodes import Electrodes
+from .feasibility import material_mu
 from .fingertip_modes import ModalPath
 from .injection import PztSource
 from .mocap import mocap_samples
@@ -86,16 +87,12 @@ class Rig:
         self.rng = {name: np.random.default_rng(ss) for name, ss in zip(STREAMS, children)}
         mat = p["materials"][material]
         ss = p["stick_slip"]
-        mu_mean = float(np.mean([m["mu_static"] for m in p["materials"].values()]))
-        mu_mat = mu_mean + ss["mu_spread_scale"] * (mat["mu_static"] - mu_mean)
-        self.mu_s = mu_mat * (1.0 + ss["mu_series_jitter"] * self.rng["friction"].standard_normal())
+        self.mu_s = material_mu(p, material) * (1.0 + ss["mu_series_jitter"] * self.rng["friction"].standard_normal())
         self.roughness = mat["roughness"]
         c = p["contact"]
         self.radius_mm = contact.effective_radius_mm(c)
         self.e_star, _ = contact.effective_moduli_mpa(c, mat["object_modulus_mpa"])
-        nu = c["skin_poisson"]
-        g_obj = mat["object_modulus_mpa"] / (2 * (1 + nu))
-        self.g_star_int = 1.0 / ((2 - nu) / c["interfacial_shear_modulus_mpa"] + (2 - nu) / g_obj)
+        self.g_star_int = contact.interfacial_shear_modulus_mpa(c, mat["object_modulus_mpa"])
         # soft objects add a little damping to the modes (assumption: proportional to skin/object compliance ratio)
         self.material_damping = 0.01 * min(1.0, c["skin_modulus_mpa"] / mat["object_modulus_mpa"])
         self.k = ss["spring_n_per_mm"]
