@@ -113,8 +113,10 @@ class LinkConfig:
         return self.press_sign * (start_pose[self.press_axis] - pose[self.press_axis]) * 1000.0
 
     def move_s(self) -> float:
-        """The longest one period's moveL takes (accelerate, travel max_step_mm, decelerate)."""
-        return self.loop.max_step_mm / 1000.0 / self.speed_m_s + self.speed_m_s / self.accel_m_s2
+        """The longest one period's moveL takes: max_step_mm with a trapezoidal speed profile
+        (a triangular one when the move is too short to reach speed_m_s)."""
+        d, v, a = self.loop.max_step_mm / 1000.0, self.speed_m_s, self.accel_m_s2
+        return d / v + v / a if d >= v * v / a else 2.0 * math.sqrt(d / a)
 
 
 def link_main(cfg: LinkConfig, jobs, events, start_pose) -> None:
