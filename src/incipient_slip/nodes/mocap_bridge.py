@@ -10,7 +10,8 @@ receive time before). A frame where the body is untracked, missing or non-finite
 data: nothing is published for it (never a zero pose), it is counted and warned about.
 
 The NatNet client (`devices.natnet`) parses by the server's version, counts and drops bad
-packets, and reconnects with back-off; its notices become log lines: NO_DATA names the Motive
+packets, and reconnects with back-off (at start, capped at half the time left to
+`startup_timeout_s`, so it keeps trying until the deadline); its notices become log lines: NO_DATA names the Motive
 settings to check, a NatNet version change is an alarm. With no server info within
 `startup_timeout_s` the node exits 2 with one line naming the address (a missing device).
 """
@@ -89,13 +90,16 @@ class MocapBridge(Node):
         apply_rig_config(self, "natnet", kwargs.get("params"))
         p = self.param
         self.body_id, self.rail_axis = p("body_id"), p("rail_axis")
+        startup_s = p("startup_timeout_s")
+        self._deadline = time.monotonic() + startup_s if startup_s > 0 else None
         self.client = nn.NatNetClient(
             _address("server_address", p("server_address")),
             local_address=_address("local_address", p("local_address")),
             command_port=p("command_port"), data_port=p("data_port"), multicast=p("multicast"),
             multicast_address=_address("multicast_address", p("multicast_address")),
-            no_data_s=p("no_data_s"), connect_timeout_s=p("connect_timeout_s"))
-        opened_by = time.monotonic() + p("startup_timeout_s")
+            no_data_s=p("no_data_s"), connect_timeout_s=p("connect_timeout_s"),
+            connect_by=self._deadline)       # attempts go on until the deadline, not 8 s before
+        opened_by = time.monotonic() + startup_s
         while True:      # the network (or its address) may come up a little after the node
             try:
                 self.client.open()
@@ -108,7 +112,6 @@ class MocapBridge(Node):
         self.skipped = {"missing": 0, "untracked": 0, "non-finite": 0}
         self.published = 0
         self.pose_pub = self.create_publisher(ObjectPose)
-        self._deadline = time.monotonic() + p("startup_timeout_s") if p("startup_timeout_s") > 0 else None
         self.create_timer(p("poll_s"), self.poll)
 
     def poll(self):
