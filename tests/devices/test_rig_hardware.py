@@ -3,6 +3,7 @@ launch ends within seconds with exit 2 and one line per missing device; rig_chec
 the emulated devices answer."""
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -94,3 +95,40 @@ def test_robot_recover_without_a_robot_node_is_exit_2(graph):
     proc = graph.spawn([str(Path(sys.executable).parent / "slip"), "robot", "recover", "--timeout", "0.5"])
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 2 and "no ur5 node" in err.decode()
+
+
+def biotac_bridge(graph, tmp_path, *extra) -> Path:
+    """An emulated BioTac bridge on a pty; the path of its link once it is there."""
+    link = tmp_path / "biotac"
+    proc = graph.spawn(["python", "-m", "incipient_slip.devices.biotac_emulator", "--link", str(link), *extra])
+    assert proc.stdout.readline().startswith(b"biotac emulator: bridge on"), proc.communicate()[1].decode()
+    return link
+
+
+def rig_check(graph, tmp_path, biotac_port, timeout_s=3.0):
+    path = tmp_path / "rig.yaml"
+    path.write_text("{}\n")           # no device sections: only the BioTac port is checked
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.rig_check", f"rig_config:={path}",
+                        f"biotac_port:={biotac_port}", "stay:=false", f"timeout_s:={timeout_s}"])
+    _, err = proc.communicate(timeout=60)
+    return proc.returncode, err.decode()
+
+
+def test_rig_check_passes_a_bridge_whose_sensor_answers_and_streams(graph, tmp_path):
+    rc, err = rig_check(graph, tmp_path, biotac_bridge(graph, tmp_path))
+    assert rc == 0 and "all 1 devices answer: biotac" in err
+
+
+def test_rig_check_refuses_a_bridge_without_a_sensor(graph, tmp_path):
+    rc, err = rig_check(graph, tmp_path, biotac_bridge(graph, tmp_path, "--missing-sensor"))
+    assert rc == 2 and "[rig_check] biotac: no BioTac on sensor slot 0" in err and "next attempt" not in err
+
+
+def test_rig_check_refuses_a_port_where_no_bridge_answers(graph, tmp_path):
+    master, slave = os.openpty()             # a serial port with nobody behind it
+    try:
+        rc, err = rig_check(graph, tmp_path, os.ttyname(slave), timeout_s=1.0)
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert rc == 2 and "[rig_check] biotac: the bridge on" in err and "did not answer the property request" in err
