@@ -8,7 +8,8 @@ The file format follows ROS 2's YAML launch frontend. A top-level `launch:` list
       - node:
           exec: estimator            # incipient_slip.nodes.estimator (pkg: graph for the tool
                                      # processes recorder, replay, monitor), a dotted module, or a .py path
-          name: estimator            # default: the exec's last part
+          name: estimator            # default: a module's last part, a .py path's stem
+                                     # (unique in the launch: a name used twice is refused)
           param: [{name: method, value: "$(var method)"}]
           remap: [{from: /biotac/pac, to: /biotac/pac_raw}]
           required: true             # its exit ends the launch (with its exit code)

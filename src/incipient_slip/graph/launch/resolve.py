@@ -209,11 +209,18 @@ def _exec_target(exec_: str, pkg: str, scope: Scope, line) -> str:
     return module
 
 
+def _default_name(exec_: str) -> str:
+    """A node's name when it has no `name:`: a .py path's file stem, a module's last part
+    (`incipient_slip.graph.recorder` is `recorder`, not its package's `graph`)."""
+    if exec_.endswith(".py") or "/" in exec_:
+        return Path(exec_).stem
+    return exec_.rsplit(".", 1)[-1]
+
+
 def _resolve_node(body: Marked, scope: Scope) -> NodeSpec:
     lines = body.lines
     exec_ = scope.text(_need(body, "exec", scope, "node"), lines["exec"], "exec")
-    name = (scope.text(body["name"], lines["name"], "name") if "name" in body
-            else Path(exec_).stem.rsplit(".", 1)[-1])
+    name = scope.text(body["name"], lines["name"], "name") if "name" in body else _default_name(exec_)
     if not re.fullmatch(r"[A-Za-z_][\w.-]*", name):
         raise scope.error(lines.get("name", body.line), "name",
                           f"node name {name!r}: use letters, digits, '_', '.', '-'")
