@@ -69,6 +69,10 @@ def test_hardware_launch_without_devices_exits_2_with_one_line_per_device(tmp_pa
     lines = [l for l in text.splitlines() if l.startswith("[rig_check]") and "shutting down" not in l]
     assert [re.match(r"\[rig_check\] (\w+):", l).group(1) for l in lines] == ["natnet", "zaber", "ur5", "biotac"]
     assert "127.0.0.1" in lines[0] and "ttyNOPE" in lines[1] and "127.1.0.1" in lines[2]
+    # a gate: no device node was started beside the check (they slowed it down and had to stop)
+    assert re.search(r"gate rig_check exited with exit code 2; not started: [\w, ]*biotac_reader", text)
+    assert re.search(r"\[rig_check\] shutting down: 4 of 4 device\(s\) missing \(checked in [\d.]+ s, "
+                     r"slowest (natnet|zaber|ur5|biotac)\)", text)
 
 
 def test_rig_check_passes_when_the_emulated_devices_answer(tmp_path, graph):

@@ -41,6 +41,7 @@ class NodeSpec:
     remaps: dict[str, str] = field(default_factory=dict)
     required: bool = False
     respawn: bool = False
+    gate: bool = False        # the nodes after it start only once it exited 0
     respawn_delay: float = 1.0
     env: dict[str, str] = field(default_factory=dict)
     source: str = ""
@@ -75,6 +76,7 @@ class LaunchDescription:
                 "name": n.name, "exec": n.exec, "command": " ".join(n.argv()), "params": n.params,
                 "remaps": n.remaps, "required": n.required, "respawn": n.respawn,
                 **({"respawn_delay": n.respawn_delay} if n.respawn else {}),
+                **({"gate": True} if n.gate else {}),
                 **({"env": env} if env else {}),
                 "waits_for": sorted({r for names in readers.values() for r in names}),
                 "source": n.source})
@@ -252,7 +254,7 @@ def _resolve_node(body: Marked, scope: Scope) -> NodeSpec:
             if not topic.startswith("/") or " " in topic:
                 raise scope.error(item.lines[key], key, f"topic {topic!r} must start with '/'")
         spec.remaps[src] = dst
-    for key in ("required", "respawn"):
+    for key in ("required", "respawn", "gate"):
         if key in body:
             setattr(spec, key, scope.flag(body[key], lines[key], key))
     if "respawn_delay" in body:
