@@ -167,3 +167,23 @@ def test_a_sketch_for_zero_or_too_many_sensors_does_not_build(tmp_path, n):
     build, _ = build_sketch(tmp_path, text.replace("constexpr uint8_t N_BIOTACS = 1;",
                                                    f"constexpr uint8_t N_BIOTACS = {n};"))
     assert build.returncode != 0 and "N_BIOTACS must be 1 to 5" in build.stderr
+
+
+ARM_CXX = shutil.which("arm-none-eabi-g++")
+
+
+def test_the_sketch_compiles_for_the_teensy_4_cpu(tmp_path):
+    """Cortex-M7 with its FPU, as the Teensy 4.0/4.1 (Debian: gcc-arm-none-eabi and
+    libstdc++-arm-none-eabi-newlib); against the stub API, the Teensyduino core not being in
+    any registry this project uses. Catches what only a 32-bit ARM build says (int widths,
+    warnings as errors)."""
+    if ARM_CXX is None:
+        pytest.skip("no arm-none-eabi-g++ (apt-get install gcc-arm-none-eabi libstdc++-arm-none-eabi-newlib)")
+    unit = tmp_path / "sketch.cpp"
+    unit.write_text('#include <Arduino.h>\n#include "biotac_bridge.ino"\n')
+    flags = ["-mcpu=cortex-m7", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv5-d16", "-std=gnu++17", "-O2",
+             "-Wall", "-Wextra", "-Werror", "-fno-exceptions", "-fno-rtti", f"-I{FIRMWARE}", f"-I{STUB}"]
+    for source in (unit, FIRMWARE / "biotac_frame.cpp"):
+        build = subprocess.run([ARM_CXX, *flags, "-c", str(source), "-o", str(tmp_path / f"{source.stem}.o")],
+                               capture_output=True, text=True, timeout=120)
+        assert build.returncode == 0, build.stderr
