@@ -82,6 +82,7 @@ def test_an_out_of_range_launch_arg_is_one_line_and_exit_2_before_anything_start
     assert err.count("\n") == 1 and f"node '{node}': parameter {name}:=" in err
 
 
+@pytest.mark.timeout(300)          # 28 resolutions; each imports node modules (slow on a loaded host)
 def test_the_shipped_launch_files_resolve_to_the_recorded_graphs():
     """Every rig and method of stabilize.yaml and collect.yaml gives the graph recorded in
     tests/data/launch_graphs.json (nodes in start order, params, commands, topics, handshakes;
