@@ -201,7 +201,7 @@ def test_protective_stop_holds_until_an_explicit_recovery(robot):
     assert 3 not in ur("state")["commands"] and ur("state")["protective_stop"]
     probe.recover.publish(RobotRecover(note="test"))
     run(nodes, lambda: node.recoveries == [True])
-    assert probe.states[-1].state == "ready"
+    run(nodes, lambda: probe.states[-1].state == "ready")     # the probe reads it a spin later
     assert not ur("state")["protective_stop"] and ur("state")["scripts"] == 2
     probe.force(3.0)
     probe.grip.publish(GripCommand(normal_force_kpa=4.0, period=1))
@@ -238,7 +238,7 @@ def test_emergency_stop_refuses_recovery_until_released(robot):
     run(nodes, lambda: not probe.states[-1].emergency_stop)
     probe.recover.publish(RobotRecover())
     run(nodes, lambda: node.recoveries == [False, True])
-    assert probe.states[-1].state == "ready"
+    run(nodes, lambda: probe.states[-1].state == "ready")
     assert ur("state")["powered"] and ur("state")["scripts"] == 2
 
 
@@ -336,11 +336,11 @@ def test_the_fake_controllers_watchdog_stops_the_program_unless_kicked(fake):
     ur = fake()
     control = rtde_control.RTDEControlInterface(ur.address, 125.0)
     try:
-        assert control.setWatchdog(20.0)                 # 50 ms
-        deadline = time.monotonic() + 1.0
+        assert control.setWatchdog(1.0)                  # 1 s, as the node's default
+        deadline = time.monotonic() + 2.5
         while time.monotonic() < deadline:               # kicked: keeps running
             assert control.kickWatchdog()
-            time.sleep(0.01)
+            time.sleep(0.02)
         assert ur("state")["program_running"]
         run_until(lambda: not ur("state")["program_running"], 10.0)   # not kicked: stops
         assert ur("state")["stats"]["watchdog_stops"] == 1
@@ -356,9 +356,13 @@ def run_until(predicate, timeout_s):
 
 
 def ur5_process(graph, ur, *params):
+    """A ur5 node process, returned once it says it is connected (its link armed the watchdog)."""
     proc = graph.spawn(["python", "-m", "incipient_slip.nodes.ur5", f"robot_address:={ur.address}", *params])
-    run_until(lambda: 35 in ur("state")["commands"] or proc.poll() is not None, 60.0)
+    for line in iter(proc.stderr.readline, b""):
+        if b"] connected to" in line:
+            break
     assert proc.poll() is None, proc.communicate()[1].decode()
+    assert 35 in ur("state")["commands"]
     return proc
 
 

@@ -493,9 +493,10 @@ class UR5(Node):
 
     def _close(self):
         if self.link is not None and self.link.is_alive():
-            if self.connected_once and self.respawn_at is None:
-                self.jobs.put(("quit",))          # disconnects ur-rtde cleanly
-                self.link.join(timeout=2.0)
+            # the link stops the robot's script and disconnects ur-rtde cleanly; one still
+            # connecting is terminated (its watchdog, once armed, stops the script then)
+            self.jobs.put(("quit",))
+            self.link.join(timeout=5.0)
             if self.link.is_alive():
                 self.link.terminate()
                 self.link.join(timeout=2.0)
