@@ -16,6 +16,7 @@
 using namespace biotac;
 
 constexpr uint8_t N_BIOTACS = 1;
+static_assert(N_BIOTACS >= 1 && N_BIOTACS <= kMaxBiotacs, "N_BIOTACS must be 1 to 5 (sensors wired)");
 constexpr uint8_t CS_PINS[kMaxBiotacs] = {10, 9, 8, 7, 6};
 constexpr uint32_t SPI_HZ = 4400000;           // BioTac: mode 0, MSB first, 4.4 MHz
 constexpr uint32_t OVERRUN_SLACK_US = 20;      // a slot starting later than this is an overrun
@@ -150,7 +151,8 @@ void loop() {
   if (slot_in_frame == kSlotsPerFrame - 1) {
     // Device time: the bridge's microsecond clock (since boot) at the frame's first command.
     const uint32_t frame_start_us = slot_due_us(slot_index - kSlotsPerFrame);
-    send_frame(frame_start_us, pending_status);
-    pending_status = 0;
+    const uint16_t status = pending_status;
+    pending_status = 0;  // before sending: send_frame sets kStatusTxDropped for the next frame
+    send_frame(frame_start_us, status);
   }
 }

@@ -53,10 +53,13 @@ def test_hardware_rig_checks_the_devices_then_runs_every_device_node():
     """(The launch itself, with no device attached: tests/devices/test_rig_hardware.py.)"""
     got = nodes(load(find_launch_file("stabilize.yaml"), {"rig": "hardware", "rig_config": "lab.yaml",
                                                           "biotac_port": "/dev/ttyX"}))
-    motion = ["rig_check", "mocap_bridge", "linear_actuator", "ur5"]
-    assert set(motion) | {"biotac_reader", "pzt_injector"} <= set(got) and "rig_sim" not in got
+    motion = ["mocap_bridge", "linear_actuator", "ur5"]
+    assert set(motion) | {"rig_check", "biotac_reader", "pzt_injector"} <= set(got) and "rig_sim" not in got
     for name in motion:
         assert got[name].required and got[name].params["rig_config"] == "lab.yaml"
+    # the check is a gate: the device nodes start once it exited 0 (docs/graph.md)
+    assert got["rig_check"].gate and got["rig_check"].params["rig_config"] == "lab.yaml"
+    assert list(got).index("rig_check") < min(list(got).index(name) for name in motion)
     assert got["rig_check"].params["biotac_port"] == got["biotac_reader"].params["port"] == "/dev/ttyX"
 
 
@@ -77,3 +80,21 @@ def test_an_out_of_range_launch_arg_is_one_line_and_exit_2_before_anything_start
     assert launch_main(["stabilize.yaml", arg, "--print"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"node '{node}': parameter {name}:=" in err
+
+
+@pytest.mark.timeout(300)          # 28 resolutions; each imports node modules (slow on a loaded host)
+def test_the_shipped_launch_files_resolve_to_the_recorded_graphs():
+    """Every rig and method of stabilize.yaml and collect.yaml gives the graph recorded in
+    tests/data/launch_graphs.json (nodes in start order, params, commands, topics, handshakes;
+    not where in which file a node is written): a refactoring of the files keeps the graphs."""
+    import importlib.util
+    from pathlib import Path
+    data = Path(__file__).resolve().parents[1] / "data"
+    spec = importlib.util.spec_from_file_location("make_launch_graphs", data / "make_launch_graphs.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    recorded = json.loads((data / "launch_graphs.json").read_text())
+    got = json.loads(json.dumps(module.graphs()))          # the JSON types, as recorded
+    assert sorted(got) == sorted(recorded)
+    for case in recorded:
+        assert got[case] == recorded[case], f"{case}: the graph changed (see make_launch_graphs.py)"

@@ -184,3 +184,43 @@ def test_stream_counts_exactly_the_drops_and_repeats_it_was_given(plan):
     assert stream.counters.frames_dropped == plan.count("drop")
     assert stream.counters.frames_repeated == plan.count("repeat")
     assert stream.counters.counter_jumps == 0
+
+
+# --- what the counters count, as docs/hardware/biotac-bridge.md and docs/messages.md say -------
+
+def test_bytes_skipped_holds_the_rest_of_a_frame_refused_for_its_crc_but_not_its_sync():
+    bad = bytearray(_frame(1, 10_000))
+    bad[-1] ^= 0xFF                                            # the CRC
+    stream = bt.BridgeStream()
+    readings = stream.feed(_frame(0, 0) + bytes(bad) + _frame(2, 20_000))
+    c = stream.counters
+    assert [r.frame_index for r in readings] == [0, 2]
+    assert (c.crc_errors, c.bytes_skipped) == (1, len(bad) - 2)
+    assert c.frames_dropped == 1                               # the refused frame is missing too
+
+
+def test_frames_dropped_counts_refused_frames_but_not_those_missed_while_disconnected():
+    stream = bt.BridgeStream()
+    stream.feed(_frame(0, 0) + bt.pack_data_frame(1, 10_000, bt.encode_word(1) * 44, 1, pattern=0x1234)
+                + _frame(2, 20_000))
+    assert (stream.counters.pattern_mismatches, stream.counters.frames_dropped) == (1, 1)
+    stream.restart()                                           # a reconnection (unplug, stall)
+    [reading] = stream.feed(_frame(500, 5_000_000))
+    assert reading.frame_index == 0 and stream.counters.frames_dropped == 1
+
+
+def test_an_error_word_is_counted_as_an_error_word_only_not_as_a_parity_error():
+    replies = bytearray(bt.encode_word(2000) * 44)
+    replies[2 * 4:2 * 4 + 2] = (0xA52D).to_bytes(2, "big")    # slot 4 is E03: "E-"
+    stream = bt.BridgeStream()
+    stream.feed(bt.pack_data_frame(0, 0, bytes(replies), 1))
+    e03 = bt.REPORTED_CHANNELS.index("E03")
+    assert (stream.counters.error_words[e03], stream.counters.parity_errors[e03]) == (1, 0)
+
+
+@given(st.integers(0, 0xFFF), st.integers(0, 3))
+def test_bits_2_and_1_of_the_second_byte_are_not_part_of_the_value(value, unused):
+    b0, b1 = bt.encode_word(value)
+    assert b1 & 0b110 == 0                                     # sent as 0
+    b1 = bt.with_odd_parity((b1 >> 1) | unused)                # set them, parity made right again
+    assert bt.decode_word(b0, b1) == value and bt.word_status(b0, b1) == "ok"

@@ -170,3 +170,49 @@ def test_restart_with_another_version_is_an_alarm_and_parsing_follows(rig, multi
     n = len(s.frames)
     s.until(lambda: len(s.frames) >= n + 5)
     assert s.client.version == (3, 1) and s.client.stats["version_changes"] == 1
+
+
+class FakeClock:
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self):
+        return self.t
+
+
+def attempt_times(client, clock, until_s, step_s=0.01):
+    """The clock times at which the client sent a connect or legacy ping, stepping to until_s."""
+    times, sent = [], 0
+    while clock.t < until_s:
+        client.poll()
+        now_sent = client.stats["connects"] + client.stats["legacy_pings"]
+        times += [clock.t] * (now_sent - sent)
+        sent = now_sent
+        clock.t = round(clock.t + step_s, 6)
+    return times
+
+
+def test_start_up_attempts_go_on_until_the_deadline_not_8_s_before():
+    clock = FakeClock()
+    port = free_udp_port()          # nobody answers there
+    client = nn.NatNetClient(command_port=port, data_port=free_udp_port(), connect_by=20.0,
+                             clock=clock).open()
+    try:
+        times = attempt_times(client, clock, 20.0)
+    finally:
+        client.close()
+    assert times[:4] == [0.0, 1.0, 2.0, 4.0]                   # the back-off as before
+    gaps_to_deadline = [20.0 - t for t in times]
+    assert min(gaps_to_deadline) <= 0.1                        # was 6 s: the last try at 14 s
+    for before, after in zip(times, times[1:]):               # never a gap longer than half the rest
+        assert after - before <= max((20.0 - before) / 2, nn.MIN_CONNECT_GAP_S) + 0.011
+
+
+def test_without_a_deadline_the_back_off_reaches_its_cap():
+    clock = FakeClock()
+    client = nn.NatNetClient(command_port=free_udp_port(), data_port=free_udp_port(), clock=clock).open()
+    try:
+        times = attempt_times(client, clock, 40.0)
+    finally:
+        client.close()
+    assert times[:8] == [0.0, 1.0, 2.0, 4.0, 6.0, 10.0, 14.0, 22.0]

@@ -22,12 +22,46 @@ def frame_with(body: nn.RigidBody, **kw) -> nn.Frame:
     return nn.Frame(frame_number=1, rigid_bodies=(body,), **kw)
 
 
-@pytest.mark.parametrize("axis, expected", [("y", [10.0, 23.5, -2.0]), ("x", [23.5, 10.0, -2.0]),
-                                            ("-z", [10.0, 2.0, 23.5])])
-def test_rail_axis_becomes_y_in_mm(axis, expected):
+@pytest.mark.parametrize("axis, expected", [
+    ("y", [10.0, 23.5, -2.0]), ("-y", [-10.0, -23.5, -2.0]), ("x", [-23.5, 10.0, -2.0]),
+    ("-x", [23.5, -10.0, -2.0]), ("z", [10.0, -2.0, -23.5]), ("-z", [10.0, 2.0, 23.5])])
+def test_rail_axis_is_rotated_to_y_in_mm(axis, expected):
     body = nn.RigidBody(1, (0.010, 0.0235, -0.002), (0.0, 0.0, 0.0, 1.0))
     pose, why = pose_from_frame(frame_with(body), 1, axis, recv_ns=10**18)
     assert why == "" and np.allclose(pose.position_mm, expected)
+
+
+def matrix_of(q):
+    """The rotation matrix of a unit quaternion (x, y, z, w)."""
+    x, y, z, w = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def published(axis, position_m, orientation_xyzw):
+    pose, _ = pose_from_frame(frame_with(nn.RigidBody(1, position_m, orientation_xyzw)), 1, axis, recv_ns=1)
+    return pose.position_mm / 1000.0, np.asarray(pose.orientation_xyzw)
+
+
+@pytest.mark.parametrize("axis", ["y", "-y", "x", "-x", "z", "-z"])
+def test_rail_axis_turns_position_and_orientation_together_by_a_proper_rotation(axis):
+    # the position map, read off the bridge: where Motive's unit vectors go
+    R = np.column_stack([published(axis, tuple(e), (0.0, 0.0, 0.0, 1.0))[0] for e in np.eye(3)])
+    rail = np.zeros(3)
+    rail["xyz".index(axis[-1])] = -1.0 if axis.startswith("-") else 1.0
+    assert np.allclose(R @ rail, [0.0, 1.0, 0.0]) and np.isclose(np.linalg.det(R), 1.0)   # right-handed
+    # a known pose: 90 deg about the rail in Motive is 90 deg about +y on the rig
+    s = np.sqrt(0.5)
+    _, q = published(axis, (0.0, 0.0, 0.0), (*(s * rail), s))
+    assert np.allclose(matrix_of(q), matrix_of((0.0, s, 0.0, s)))
+    # any pose: a point fixed on the body lands where the rotated Motive point lands (the
+    # body's axes are turned as the world's are)
+    p = np.array([0.010, 0.0235, -0.002])
+    q_motive = np.array([0.1, -0.3, 0.5, 0.8]) / np.linalg.norm([0.1, -0.3, 0.5, 0.8])
+    p_rig, q_rig = published(axis, tuple(p), tuple(q_motive))
+    marker = np.array([0.03, -0.01, 0.02])            # in the body's frame, on Motive's axes
+    assert np.allclose(p_rig + matrix_of(q_rig) @ (R @ marker), R @ (p + matrix_of(q_motive) @ marker))
 
 
 def test_stamp_is_receive_time_less_motive_reported_latency():

@@ -3,6 +3,7 @@ launch ends within seconds with exit 2 and one line per missing device; rig_chec
 the emulated devices answer."""
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -68,6 +69,10 @@ def test_hardware_launch_without_devices_exits_2_with_one_line_per_device(tmp_pa
     lines = [l for l in text.splitlines() if l.startswith("[rig_check]") and "shutting down" not in l]
     assert [re.match(r"\[rig_check\] (\w+):", l).group(1) for l in lines] == ["natnet", "zaber", "ur5", "biotac"]
     assert "127.0.0.1" in lines[0] and "ttyNOPE" in lines[1] and "127.1.0.1" in lines[2]
+    # a gate: no device node was started beside the check (they slowed it down and had to stop)
+    assert re.search(r"gate rig_check exited with exit code 2; not started: [\w, ]*biotac_reader", text)
+    assert re.search(r"\[rig_check\] shutting down: 4 of 4 device\(s\) missing \(checked in [\d.]+ s, "
+                     r"slowest (natnet|zaber|ur5|biotac)\)", text)
 
 
 def test_rig_check_passes_when_the_emulated_devices_answer(tmp_path, graph):
@@ -94,3 +99,40 @@ def test_robot_recover_without_a_robot_node_is_exit_2(graph):
     proc = graph.spawn([str(Path(sys.executable).parent / "slip"), "robot", "recover", "--timeout", "0.5"])
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 2 and "no ur5 node" in err.decode()
+
+
+def biotac_bridge(graph, tmp_path, *extra) -> Path:
+    """An emulated BioTac bridge on a pty; the path of its link once it is there."""
+    link = tmp_path / "biotac"
+    proc = graph.spawn(["python", "-m", "incipient_slip.devices.biotac_emulator", "--link", str(link), *extra])
+    assert proc.stdout.readline().startswith(b"biotac emulator: bridge on"), proc.communicate()[1].decode()
+    return link
+
+
+def rig_check(graph, tmp_path, biotac_port, timeout_s=3.0):
+    path = tmp_path / "rig.yaml"
+    path.write_text("{}\n")           # no device sections: only the BioTac port is checked
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.rig_check", f"rig_config:={path}",
+                        f"biotac_port:={biotac_port}", "stay:=false", f"timeout_s:={timeout_s}"])
+    _, err = proc.communicate(timeout=60)
+    return proc.returncode, err.decode()
+
+
+def test_rig_check_passes_a_bridge_whose_sensor_answers_and_streams(graph, tmp_path):
+    rc, err = rig_check(graph, tmp_path, biotac_bridge(graph, tmp_path))
+    assert rc == 0 and "all 1 devices answer: biotac" in err
+
+
+def test_rig_check_refuses_a_bridge_without_a_sensor(graph, tmp_path):
+    rc, err = rig_check(graph, tmp_path, biotac_bridge(graph, tmp_path, "--missing-sensor"))
+    assert rc == 2 and "[rig_check] biotac: no BioTac on sensor slot 0" in err and "next attempt" not in err
+
+
+def test_rig_check_refuses_a_port_where_no_bridge_answers(graph, tmp_path):
+    master, slave = os.openpty()             # a serial port with nobody behind it
+    try:
+        rc, err = rig_check(graph, tmp_path, os.ttyname(slave), timeout_s=1.0)
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert rc == 2 and "[rig_check] biotac: the bridge on" in err and "did not answer the property request" in err

@@ -4,8 +4,10 @@ The fake controller runs as its own process (ur-rtde's constructors hold the GIL
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 import random
+import signal
 import subprocess
 import sys
 import time
@@ -187,17 +189,6 @@ def test_each_period_presses_towards_the_target_and_reports_it(robot):
     assert state.state == "ready" and state.tcp_z_mm == pytest.approx((z0 - 0.0002) * 1000, abs=0.05)
 
 
-def test_a_command_whose_period_is_not_the_next_is_refused(robot):
-    ur, node, probe, nodes = robot()
-    probe.force(3.0)
-    run(nodes, lambda: math_isfinite(node.measured_kpa))
-    probe.grip.publish(GripCommand(normal_force_kpa=3.5, period=0))
-    run(nodes, lambda: any(s.period == 0 for s in probe.states))
-    probe.grip.publish(GripCommand(normal_force_kpa=3.5, period=2))
-    run(nodes, lambda: node.refused == 1)
-    assert ur("state")["commands"].count(3) == 1
-
-
 def test_protective_stop_holds_until_an_explicit_recovery(robot):
     ur, node, probe, nodes = robot()
     probe.force(3.0)
@@ -207,10 +198,10 @@ def test_protective_stop_holds_until_an_explicit_recovery(robot):
     probe.grip.publish(GripCommand(normal_force_kpa=4.0, period=0))
     probe.force(3.0)
     run(nodes, lambda: node.refused == 1)        # the link refuses it: stopped
-    assert ur("state")["commands"] == [] and ur("state")["protective_stop"]
+    assert 3 not in ur("state")["commands"] and ur("state")["protective_stop"]
     probe.recover.publish(RobotRecover(note="test"))
     run(nodes, lambda: node.recoveries == [True])
-    assert probe.states[-1].state == "ready"
+    run(nodes, lambda: probe.states[-1].state == "ready")     # the probe reads it a spin later
     assert not ur("state")["protective_stop"] and ur("state")["scripts"] == 2
     probe.force(3.0)
     probe.grip.publish(GripCommand(normal_force_kpa=4.0, period=1))
@@ -247,7 +238,7 @@ def test_emergency_stop_refuses_recovery_until_released(robot):
     run(nodes, lambda: not probe.states[-1].emergency_stop)
     probe.recover.publish(RobotRecover())
     run(nodes, lambda: node.recoveries == [False, True])
-    assert probe.states[-1].state == "ready"
+    run(nodes, lambda: probe.states[-1].state == "ready")
     assert ur("state")["powered"] and ur("state")["scripts"] == 2
 
 
@@ -289,3 +280,118 @@ def test_commands_that_queue_behind_a_move_are_superseded_by_the_newest(robot):
     run(nodes, lambda: any(s.period == 2 for s in probe.states))
     moves = ur("state")["commands"].count(3)
     assert moves + node.refused == 3 and node.refused >= 1      # no command applied late
+
+
+# --- restarts, periods, the state's period, the watchdog (issue 20) ----------------------------
+
+def press(nodes, probe, node, period, target_kpa, measured_kpa):
+    """One period: a fresh F_N, the command, and the wait for the state that reports it."""
+    probe.force(measured_kpa)
+    run(nodes, lambda: node.measured_kpa == pytest.approx(measured_kpa, abs=0.05)
+        and time.monotonic() - node.measured_at < 0.2)
+    probe.grip.publish(GripCommand(normal_force_kpa=target_kpa, period=period))
+    run(nodes, lambda: any(s.period == period for s in probe.states))
+
+
+def test_a_restarted_link_takes_the_depth_from_the_robot_and_keeps_the_step_limit(robot):
+    ur, node, probe, nodes = robot(max_step_mm=0.5)
+    z0 = ur("state")["tcp_pose"][2]
+    for k in range(4):                                    # 4 clamped steps: 2 mm deep
+        press(nodes, probe, node, k, 5.0, 0.0)
+    z_pressed = ur("state")["tcp_pose"][2]
+    assert z0 - z_pressed == pytest.approx(0.002, abs=2e-6)
+    link = node.link
+    os.kill(link.pid, signal.SIGKILL)                    # the link crashes without a word
+    run(nodes, lambda: not link.is_alive() and node.link is not link
+        and probe.states[-1].state == "ready" and node.respawn_at is None)
+    press(nodes, probe, node, 4, 0.0, 3.0)                # lift: 0.1 mm/kPa x 3 kPa = 0.3 mm
+    step_mm = (ur("state")["tcp_pose"][2] - z_pressed) * 1000.0
+    assert step_mm == pytest.approx(0.3, abs=0.01)        # was 2.3 mm with a remembered depth of 0
+
+
+def test_a_later_period_supersedes_missing_ones_an_older_or_repeated_one_is_refused(robot):
+    ur, node, probe, nodes = robot()
+    press(nodes, probe, node, 0, 3.5, 3.0)
+    press(nodes, probe, node, 3, 3.5, 3.0)               # periods 1 and 2 never came
+    assert node.missed_periods == 2 and node.refused == 0
+    for old in (3, 2, 0):                                 # repeated, reordered, older
+        probe.grip.publish(GripCommand(normal_force_kpa=3.5, period=old))
+    run(nodes, lambda: node.refused == 3)
+    press(nodes, probe, node, 4, 3.5, 3.0)
+    press(nodes, probe, node, 10, 3.5, 3.0)
+    assert node.refused == 3 and node.missed_periods == 2 + 5
+    assert ur("state")["commands"].count(3) == 4          # moves of periods 0, 3, 4 and 10
+
+
+def test_regular_states_carry_the_last_applied_period(robot):
+    ur, node, probe, nodes = robot()
+    assert {s.period for s in probe.states} == {-1}       # no command applied yet
+    press(nodes, probe, node, 0, 3.5, 3.0)
+    seen = len(probe.states)
+    run(nodes, lambda: len(probe.states) >= seen + 3)     # timer states after the move
+    assert [s.period for s in probe.states[seen:]] == [0] * (len(probe.states) - seen)
+
+
+def test_the_fake_controllers_watchdog_stops_the_program_unless_kicked(fake):
+    ur = fake()
+    control = rtde_control.RTDEControlInterface(ur.address, 125.0)
+    try:
+        assert control.setWatchdog(1.0)                  # 1 s, as the node's default
+        deadline = time.monotonic() + 2.5
+        while time.monotonic() < deadline:               # kicked: keeps running
+            assert control.kickWatchdog()
+            time.sleep(0.02)
+        assert ur("state")["program_running"]
+        run_until(lambda: not ur("state")["program_running"], 10.0)   # not kicked: stops
+        assert ur("state")["stats"]["watchdog_stops"] == 1
+    finally:
+        control.disconnect()
+
+
+def run_until(predicate, timeout_s):
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.01)
+
+
+def ur5_process(graph, ur, *params):
+    """A ur5 node process, returned once it says it is connected (its link armed the watchdog)."""
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.ur5", f"robot_address:={ur.address}", *params])
+    for line in iter(proc.stderr.readline, b""):
+        if b"] connected to" in line:
+            break
+    assert proc.poll() is None, proc.communicate()[1].decode()
+    assert 35 in ur("state")["commands"]
+    return proc
+
+
+def test_a_killed_node_and_link_leave_the_robot_program_stopped_by_its_watchdog(fake, graph):
+    ur = fake()
+    proc = ur5_process(graph, ur, "watchdog_hz:=2")
+    assert ur("state")["program_running"]
+    os.killpg(proc.pid, signal.SIGKILL)                  # as a host that loses power: no goodbye
+    proc.wait()
+    killed = time.monotonic()
+    run_until(lambda: not ur("state")["program_running"], 10.0)
+    stopped_after_s = time.monotonic() - killed
+    state = ur("state")
+    assert state["stats"]["watchdog_stops"] == 1 and 255 not in state["commands"]
+    assert stopped_after_s < 0.5 + 2.0                    # 1/watchdog_hz, and slack for a loaded host
+
+
+def test_a_stopped_node_stops_the_robot_program(fake, graph):
+    ur = fake()
+    proc = ur5_process(graph, ur)
+    proc.send_signal(signal.SIGINT)
+    proc.communicate(timeout=30)
+    state = ur("state")
+    assert not state["program_running"] and state["commands"][-1] == 255
+    assert state["stats"].get("watchdog_stops", 0) == 0
+
+
+def test_a_watchdog_shorter_than_one_move_is_refused(graph):
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.ur5", "robot_address:=127.0.0.1",
+                        "speed_m_s:=0.001", "watchdog_hz:=1"])
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 2 and "watchdog_hz:=1 needs a kick every 1 s" in err.decode()

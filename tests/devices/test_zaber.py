@@ -213,3 +213,28 @@ def test_noise_before_a_reply_is_dropped_or_kept_aside_never_taken_for_the_reply
     assert (reply.message_id, reply.data) == (0, "1234")
     s = client.stats
     assert s["dropped"] + s["alerts"] + s["info"] == len(noise)
+
+
+# --- message ids without a leading zero (issue 20) ---------------------------------------------
+
+@pytest.mark.parametrize("mid_text, mid", [("5", 5), ("05", 5), ("0", 0), ("00", 0), ("42", 42)])
+def test_a_reply_id_with_or_without_a_leading_zero_is_the_same_id(mid_text, mid):
+    body = f"01 1 {mid_text} OK IDLE -- 0"
+    assert z.parse_line(f"@{body}:{z.checksum(body)}") == z.Reply("@", 1, 1, mid, "OK", "IDLE", "--", "0")
+    assert z.parse_line(f"#01 1 {mid_text} note").message_id == mid
+
+
+@pytest.mark.parametrize("word", ["100", "005", "+5", "-5", "٥", ""])
+def test_what_is_not_a_message_id(word):
+    assert z.message_id_of(word) is None
+
+
+@pytest.mark.parametrize("pad_ids", [True, False])
+def test_the_client_takes_replies_whose_ids_are_padded_or_not(stage, pad_ids):
+    emulator, client = stage(homed=True, reply_checksums=True, pad_ids=pad_ids)
+    for _ in range(12):                                   # ids 0..11: one and two digits
+        client.status()
+    assert client.last_reply.message_id == 11 and client.stats["dropped"] == 0
+    client.move_abs_mm(1.0)
+    client.wait_idle(5.0)
+    assert client.position_mm() == pytest.approx(1.0, abs=1e-3)

@@ -266,3 +266,25 @@ def test_an_optional_input_without_a_writer_is_no_warning_and_the_stabilize_laun
     assert not any("/pzt/other" in w for w in remapped.warnings())
     launch_file = Path(__file__).resolve().parents[2] / "launch" / "stabilize.yaml"
     assert load_text(launch_file.read_text(), {}, str(launch_file)).warnings == []
+
+
+def test_a_node_without_a_name_is_named_after_its_module_or_script():
+    # two tools named by their dotted module paths were both "graph" (the package), and collided
+    desc = load_text(textwrap.dedent(f"""
+        launch:
+          - node: {{exec: incipient_slip.graph.recorder}}
+          - node: {{exec: incipient_slip.graph.monitor}}
+          - node: {{pkg: graph, exec: replay}}
+          - node: {{exec: {TALKER}}}
+    """), {}, "names.yaml")
+    assert [n.name for n in desc.nodes] == ["recorder", "monitor", "replay", "talker"]
+
+
+def test_two_nodes_with_one_name_are_refused_naming_both_lines():
+    text = textwrap.dedent("""
+        launch:
+          - node: {exec: incipient_slip.graph.recorder}
+          - node: {exec: incipient_slip.graph.monitor, name: recorder}
+    """)
+    with pytest.raises(LaunchError, match=r"names.yaml:4: node name 'recorder' is already used at names.yaml:3"):
+        load_text(text, {}, "names.yaml")

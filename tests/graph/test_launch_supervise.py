@@ -161,3 +161,29 @@ def test_a_publisher_waits_for_its_named_reader_not_for_a_recorder_started_befor
     assert rc == 0, err
     assert "[listener] first seq 0" in out and "[listener] done 20 gaps 0" in out
     assert "/biotac/pac" in recorder       # the stranger was there all along
+
+
+def test_a_gate_that_fails_ends_the_launch_before_the_nodes_after_it_start(graph):
+    proc = launch(graph, f"""
+        launch:
+          - node: {{exec: {EXITER}, name: check, gate: true,
+                    param: [{{name: after_s, value: 1.0}}, {{name: code, value: 2}}]}}
+          - node: {{exec: {EXITER}, name: device, required: true,
+                    param: [{{name: after_s, value: 0.05}}, {{name: code, value: 5}}]}}
+    """)
+    rc, _, err = finish(proc)
+    assert rc == 2, err
+    assert "gate check exited with exit code 2; not started: device" in err
+    assert "required node device" not in err and "[device]" not in err
+
+
+def test_a_gate_that_passes_starts_the_nodes_after_it(graph):
+    proc = launch(graph, f"""
+        launch:
+          - node: {{exec: {EXITER}, name: check, gate: true, param: [{{name: after_s, value: 0.2}}]}}
+          - node: {{exec: {EXITER}, name: device, required: true,
+                    param: [{{name: after_s, value: 0.2}}, {{name: code, value: 3}}]}}
+    """)
+    rc, _, err = finish(proc)
+    assert rc == 3, err
+    assert err.index("gate check passed; starting device") < err.index("required node device")

@@ -136,6 +136,8 @@ def test_node_and_in_process_loop_give_identical_data_for_the_same_seed(graph):
 
     assert_same_sensor_data(streams_of(ctl.got), ref, steps)
     assert [m.normal_force_kpa for m in ctl.got[RobotState]] == [o.normal_force_kpa for o in outs]
+    # the period of the last command applied: none before period 0, then the one before each
+    assert [m.period for m in ctl.got[RobotState]] == [-1] + list(range(steps - 1))
     assert outs[8].normal_force_kpa == outs[7].normal_force_kpa          # the hold
     ticks = ctl.got[ActuatorState]
     assert [m.step_index for m in ticks] == list(range(steps))

@@ -16,6 +16,10 @@ of theirs. What it speaks:
   loop runs as the register handshake of that script: output int register 0 is 1 (ready) when
   input int register 0 is 0; a command (MOVEL 3, SERVOL 24, FORCE_MODE 6, STOP_SCRIPT 255, ...)
   runs once and sets it to 2 (done) -- for a blocking MOVEL when the motion ends.
+  SET_WATCHDOG 35 arms the script's `rtde_set_watchdog` on input int register 0 with the
+  minimum frequency in input double register 0 and the action "stop": when no data package
+  writes that register for 1/frequency s (ur-rtde's kickWatchdog sends one), the program stops
+  (`stats["watchdog_stops"]`). A stopped program has no watchdog.
 * Dashboard: the text commands ur-rtde uses (PolyscopeVersion, get serial number, is in
   remote control, stop, unlock protective stop, close safety popup, power on, brake release,
   safetystatus, robotmode, programState, running, quit).
@@ -78,7 +82,8 @@ _INPUTS.update({f"input_double_register_{i}": "DOUBLE" for i in range(48)})
 _INPUTS["external_force_torque"] = "VECTOR6D"
 
 # ur-rtde's control script command numbers this controller carries out
-NO_CMD, MOVEL, FORCE_MODE, SERVOL, STOP_SCRIPT = 0, 3, 6, 24, 255
+NO_CMD, MOVEL, FORCE_MODE, SERVOL, SET_WATCHDOG, STOP_SCRIPT = 0, 3, 6, 24, 35, 255
+WATCHDOG_REGISTER = "input_int_register_0"     # what ur-rtde's script watches (kickWatchdog writes it)
 _REALTIME = {24, 11, 9, 10, 6, 25, 26, 27, 38, 58, 66, 67, 68, 69, 70, 71}
 # runtime_state, safety status bits, robot/safety modes (RTDE guide)
 STOPPED, PLAYING = 1, 2
@@ -129,6 +134,8 @@ class FakeURController:
         self._out_double = [0.0] * 48
         self.runtime_state = STOPPED
         self._executing = False
+        self._watchdog_s = None                    # armed: longest gap between register updates
+        self._watchdog_fed = 0.0
         self.protective = self.estop = False
         self.powered = True
         self._sel = selectors.DefaultSelector()
@@ -380,6 +387,8 @@ class FakeURController:
                 self.stats["rtde_bad_packages"] += 1
                 return
             values = spec[1].unpack(payload)[1:]
+            if WATCHDOG_REGISTER in spec[0]:
+                self._watchdog_fed = time.monotonic()
             i = 0
             for name in spec[0]:
                 n = 6 if name == "external_force_torque" else 1
@@ -470,9 +479,11 @@ class FakeURController:
         doubles = [float(self._in.get(f"input_double_register_{i}", 0.0)) for i in range(8)]
         self.commands.append((cmd, doubles))
         if cmd == STOP_SCRIPT:
-            self.runtime_state = STOPPED
-            self._out_int[0] = 0
+            self._halt()
             return
+        if cmd == SET_WATCHDOG:       # rtde_set_watchdog(WATCHDOG_REGISTER, min frequency, "stop")
+            self._watchdog_s = 1.0 / doubles[0] if doubles[0] > 0 else None
+            self._watchdog_fed = time.monotonic()
         if cmd in (MOVEL, SERVOL):
             self._target = doubles[:6]
             self._moving = True
@@ -484,6 +495,9 @@ class FakeURController:
 
     def _step(self, now: float) -> None:
         dt, self._last = now - self._last, now
+        if self._watchdog_s is not None and now - self._watchdog_fed > self._watchdog_s:
+            self._halt()              # the watchdog's action "stop": the program stops
+            self.stats["watchdog_stops"] += 1
         if not self._moving:
             return
         alpha = 1.0 - math.exp(-dt / self.time_constant_s)
@@ -498,6 +512,7 @@ class FakeURController:
     def _halt(self) -> None:
         self._target = list(self._pose)
         self._moving = self._blocking_move = self._executing = False
+        self._watchdog_s = None       # a stopped program has no watchdogs
         self.runtime_state = STOPPED
         self._out_int[0] = 0
 

@@ -393,6 +393,9 @@ RESTART_JUMP_FRAMES = 240   # a frame number this far back is a restarted stream
 BAD_FRAMES_BEFORE_RECHECK = 10
 
 
+MIN_CONNECT_GAP_S = 0.05     # the shortest wait between two connect attempts
+
+
 class NatNetClient:
     """Connects to a NatNet server and returns its frames; non-blocking, one thread.
 
@@ -408,12 +411,14 @@ class NatNetClient:
                  command_port: int = DEFAULT_COMMAND_PORT, data_port: int = DEFAULT_DATA_PORT,
                  multicast: bool = False, multicast_address: str = DEFAULT_MULTICAST_ADDRESS,
                  keepalive_s: float = 1.0, connect_timeout_s: float = 1.0,
-                 no_data_s: float = 1.0, backoff_max_s: float = 8.0, clock=time.monotonic):
+                 no_data_s: float = 1.0, backoff_max_s: float = 8.0, connect_by: float | None = None,
+                 clock=time.monotonic):
         self.server = (server_address, command_port)
         self.local_address, self.data_port = local_address, data_port
         self.multicast, self.multicast_address = multicast, multicast_address
         self.keepalive_s, self.connect_timeout_s = keepalive_s, connect_timeout_s
         self.no_data_s, self.backoff_max_s = no_data_s, backoff_max_s
+        self.connect_by = connect_by      # clock time the caller gives up at without server info
         self.clock = clock
         self.stats: Counter = Counter()
         self.server_info: ServerInfo | None = None
@@ -613,13 +618,21 @@ class NatNetClient:
             legacy = self._attempt % 2 == 1
             self._send(pack_legacy_ping() if legacy else pack_connect())
             self.stats["legacy_pings" if legacy else "connects"] += 1
-            delay = min(self.connect_timeout_s * 2 ** (self._attempt // 2), self.backoff_max_s)
             self._attempt += 1
-            self._next_connect = now + delay
+            self._next_connect = now + self._connect_delay(now)
         if not self.multicast and self.server_info is not None and now >= self._next_keepalive:
             self._send(pack_packet(NAT_KEEPALIVE))
             self.stats["keepalives"] += 1
             self._next_keepalive = now + self.keepalive_s
+
+    def _connect_delay(self, now: float) -> float:
+        """Seconds to the next connect attempt: the back-off (connect_timeout_s doubling every
+        second attempt up to backoff_max_s), before the first server info at most half the time
+        left to `connect_by` (never below MIN_CONNECT_GAP_S), so attempts go on until then."""
+        delay = min(self.connect_timeout_s * 2 ** ((self._attempt - 1) // 2), self.backoff_max_s)
+        if self.connect_by is not None and self.server_info is None and now < self.connect_by:
+            delay = min(delay, max((self.connect_by - now) / 2, MIN_CONNECT_GAP_S))
+        return delay
 
     def _send(self, packet: bytes) -> None:
         if self._cmd is None:         # closed (or never opened): nothing to send on

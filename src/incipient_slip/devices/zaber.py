@@ -7,8 +7,9 @@ flag (`--` for none). `#` lines carry extra information, `!` lines are alerts (o
 The checksum is the two's complement of the byte sum of the text between the leading
 character and the colon, mod 256, in upper-case hex.
 
-The client sends every command with a message id (0..99, cycling) and a checksum, reads
-lines until the reply with its device, axis and id, and drops (and counts) everything else:
+The client sends every command with a message id (0..99, cycling, two digits) and a checksum,
+reads lines until the reply with its device, axis and id (one or two digits: `@01 1 5 OK ...`
+and `@01 1 05 OK ...` are the same reply), and drops (and counts) everything else:
 a garbled line, a wrong checksum, a reply to an earlier command that timed out. A rejected
 command raises `ZaberRejected` with the reason spelled out; a fault flag (F...) raises
 `ZaberFault`; no reply raises `ZaberTimeout`. Relative moves are never retried: only the
@@ -117,6 +118,12 @@ def format_command(device: int, axis: int, message_id: int | None, command: str,
     return (f"/{body}" + (f":{checksum(body)}" if with_checksum else "") + "\n").encode("ascii")
 
 
+def message_id_of(word: str) -> int | None:
+    """The message id a word is (0..99, one or two digits: devices echo `5` as well as
+    `05`), or None when the word is not one."""
+    return int(word) if 1 <= len(word) <= 2 and word.isdigit() and word.isascii() else None
+
+
 def _split_checksum(text: str, line: str) -> str:
     if len(text) >= 3 and text[-3] == ":":
         body, cc = text[:-3], text[-2:]
@@ -138,9 +145,9 @@ def parse_line(line: str) -> Reply:
     except (IndexError, ValueError):
         raise ZaberLineError("garbled", line) from None
     rest = words[2:]
-    message_id = None
-    if rest and len(rest[0]) == 2 and rest[0].isdigit():
-        message_id, rest = int(rest[0]), rest[1:]
+    message_id = message_id_of(rest[0]) if rest else None
+    if message_id is not None:
+        rest = rest[1:]
     if kind == "#":
         return Reply(kind, device, axis, message_id, data=" ".join(rest))
     if kind == "!":

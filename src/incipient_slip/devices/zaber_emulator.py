@@ -2,7 +2,8 @@
 
     python -m incipient_slip.devices.zaber_emulator      # prints the port to open
 
-It reads command lines on the pty and answers as a Zaber device does: the message id echoed,
+It reads command lines on the pty and answers as a Zaber device does: the message id echoed
+(two digits, or as a plain number with `pad_ids=False`),
 the command's checksum verified, replies with a checksum when `comm.checksum` is 1, BUSY for a
 move's duration (first-order: constant speed `maxspeed`) then IDLE, moves beyond limit.min /
 limit.max rejected with BADDATA, unknown commands with BADCOMMAND, the WR flag until the axis
@@ -25,7 +26,7 @@ import time
 import tty
 from collections import Counter, deque
 
-from incipient_slip.devices.zaber import checksum
+from incipient_slip.devices.zaber import checksum, message_id_of
 
 __all__ = ["ZaberEmulator", "main", "DEFAULT_MICROSTEPS_PER_MM"]
 
@@ -39,7 +40,7 @@ class ZaberEmulator:
     def __init__(self, *, device: int = 1, microsteps_per_mm: float = DEFAULT_MICROSTEPS_PER_MM,
                  limit_min_mm: float = 0.0, limit_max_mm: float = 50.0, speed_mm_s: float = 5.0,
                  homed: bool = False, reply_checksums: bool = False, alerts: bool = False,
-                 clock=time.monotonic):
+                 pad_ids: bool = True, clock=time.monotonic):
         self.device = device
         self.microsteps_per_mm = microsteps_per_mm
         self.limit_min = round(limit_min_mm * microsteps_per_mm)
@@ -47,6 +48,7 @@ class ZaberEmulator:
         self.maxspeed = max(1, round(speed_mm_s * microsteps_per_mm))     # microsteps/s
         self.homed = homed
         self.reply_checksums, self.alerts = reply_checksums, alerts
+        self.pad_ids = pad_ids          # False: the id echoed without a leading zero (`5`)
         self.clock = clock
         self.stats: Counter = Counter()
         self.commands: list[str] = []
@@ -189,13 +191,14 @@ class ZaberEmulator:
             return
         axis = int(words[1]) if len(words) > 1 and words[1].isdigit() else 0
         rest = words[2:] if len(words) > 1 and words[1].isdigit() else words[1:]
-        message_id = None
-        if rest and len(rest[0]) == 2 and rest[0].isdigit():
-            message_id, rest = int(rest[0]), rest[1:]
+        message_id = message_id_of(rest[0]) if rest else None
+        if message_id is not None:
+            rest = rest[1:]
         command = " ".join(rest)
         self.commands.append(command)
         flag, data = self._execute(rest, axis)
-        head = f"@{self.device:02d} {axis}" + (f" {message_id:02d}" if message_id is not None else "")
+        mid = "" if message_id is None else f" {message_id:02d}" if self.pad_ids else f" {message_id}"
+        head = f"@{self.device:02d} {axis}{mid}"
         self._send(f"{head} {flag} {'BUSY' if self._move else 'IDLE'} {self._flag()} {data}")
 
     def _execute(self, words: list[str], axis: int) -> tuple[str, str]:

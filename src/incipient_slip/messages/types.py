@@ -40,8 +40,11 @@ def _counts(n: int, note: str):
 @dataclass(frozen=True, eq=False)
 class BiotacPac(Message):
     TOPIC: ClassVar[str] = "/biotac/pac"
-    DESCRIPTION: ClassVar[str] = "BioTac P_AC: 22 samples of one 10 ms frame at 2200 Hz, ADC counts"
-    pac_counts: np.ndarray = array("<i2", (PAC_SAMPLES_PER_FRAME,), unit="ADC counts")
+    DESCRIPTION: ClassVar[str] = ("BioTac P_AC: 22 samples of one 10 ms frame at 2200 Hz, ADC counts "
+                                  "about the sensor's zero (signed)")
+    pac_counts: np.ndarray = array("<i2", (PAC_SAMPLES_PER_FRAME,), unit="ADC counts",
+                                   note="the raw 12-bit value less pac_zero_counts (units file; "
+                                        "default 2048, mid-scale)")
     pa_per_count: float = real(0.37, unit="Pa/count", low=0.0)
 
 
@@ -72,20 +75,25 @@ class BiotacStatus(Message):
     serial_number: str = text("")
     firmware_version: str = text("")
     frames_ok: int = integer("uint64")
-    frames_dropped: int = integer("uint64", note="missing by device time, whatever the cause")
+    frames_dropped: int = integer("uint64", note="missing by device time while connected: lost on USB "
+                                  "or refused (CRC, header, pattern; counted there too); not those "
+                                  "missed while disconnected (unplug, stall: see reconnects)")
     frames_repeated: int = integer("uint64")
     counter_jumps: int = integer("uint64")
     crc_errors: int = integer("uint64")
     header_errors: int = integer("uint64")
-    bytes_skipped: int = integer("uint64")
+    bytes_skipped: int = integer("uint64", note="bytes outside frames: garbage, and the rest of a frame "
+                                 "refused for its CRC or header (its 2 sync bytes are not counted here)")
     pattern_mismatches: int = integer("uint64", note="frames of another slot schedule, refused")
     bridge_overruns: int = integer("uint64")
     bridge_tx_dropped: int = integer("uint64")
     pac_frames_refused: int = integer("uint64")
     slow_frames_refused: int = integer("uint64")
     reconnects: int = integer("uint64")
-    parity_errors: np.ndarray = _counts(len(BIOTAC_CHANNELS), "per channel, BIOTAC_CHANNELS order")
-    error_words: np.ndarray = _counts(len(BIOTAC_CHANNELS), "per channel, BIOTAC_CHANNELS order")
+    parity_errors: np.ndarray = _counts(len(BIOTAC_CHANNELS), "per channel, BIOTAC_CHANNELS order: words "
+                                        "failing parity that are not an error word")
+    error_words: np.ndarray = _counts(len(BIOTAC_CHANNELS), "per channel, BIOTAC_CHANNELS order: the "
+                                      "sensor's error words (0xA5xx; they fail parity too, counted only here)")
     error_word_kinds: np.ndarray = _counts(len(BIOTAC_ERROR_WORDS), "per kind, BIOTAC_ERROR_WORDS order")
     last_error_word: str = text("")
     tare_state: str = text("none", choices=TARE_STATES)

@@ -5,11 +5,16 @@
 Checks every device section of the rig configuration at once, each within `timeout_s`:
 the NatNet server answers a connect with its server info, the Zaber stage answers a status
 poll on its serial port, the UR controller accepts connections on RTDE (30004) and the
-dashboard (29999, with its banner), the BioTac bridge's serial port (`biotac_port`, the launch
-files' arg of that name) opens. `launch ... rig:=hardware` starts it
-first and required: with a device missing the launch ends within seconds with its lines and
-exit code 2; with all present it prints one line and stays up (`stay: true`) beside the
-device nodes, so that its exit does not end the run.
+dashboard (29999, with its banner), the BioTac bridge (`biotac_port`, the launch files' arg of
+that name) answers the property request for a sensor whose serial number starts with "BT" and
+streams a frame of it (a bridge with no sensor, or one that never streams, is missing). Each
+line says how long its check took, and the last line which device was the slowest.
+
+`launch ... rig:=hardware` starts it as a gate (`gate: true`, `stay: false`), before any device
+node: with a device missing the launch ends with its lines and exit code 2 (about timeout_s
+after the launch started, as no other node is starting beside it); with all present it prints
+one line and exits 0, and the device nodes start. By hand (`stay: true`, the default) it stays
+up after success.
 """
 from __future__ import annotations
 
@@ -17,7 +22,7 @@ import socket
 import time
 from concurrent.futures import ThreadPoolExecutor
 
-from incipient_slip.devices import natnet, rig_config, zaber
+from incipient_slip.devices import biotac, natnet, rig_config, zaber
 from incipient_slip.errors import UsageError
 from incipient_slip.graph.params import Param, ParamError, merge_params
 from incipient_slip.graph.runtime import Node, run_node
@@ -107,14 +112,24 @@ def check_ur5(cfg: dict, timeout_s: float) -> str:
 
 
 def check_biotac(cfg: dict, timeout_s: float) -> str:
-    """"" when the BioTac bridge's serial port opens, else the line naming it."""
-    import serial
+    """"" when the BioTac bridge answers its property request for a sensor whose serial number
+    says it is a BioTac and then streams a frame of it, else the line naming what failed (the
+    port, a bridge that does not answer, no sensor, no frame): the reader's own handshake."""
     port = cfg.get("port", "/dev/ttyACM0")
+    link = biotac.BridgeLink(port, handshake_timeout_s=0.8 * timeout_s)
+    deadline = time.monotonic() + timeout_s
     try:
-        serial.Serial(port, timeout=0.02).close()
-    except (serial.SerialException, OSError) as exc:
-        return f"biotac: cannot open the bridge's port {port}: {exc}"
-    return ""
+        while time.monotonic() < deadline:
+            if link.poll():
+                return ""
+            failed = [text for level, text in link.events if level == "warn"]
+            if failed:                       # the first attempt failed: say why, no retry
+                return f"biotac: {failed[0].split('; next attempt')[0]}"
+            time.sleep(0.01)
+    finally:
+        link.close()
+    what = "no frame" if link.state == "streaming" else "no answer to the property request"
+    return f"biotac: the bridge on {port}: {what} within {timeout_s:g} s"
 
 
 CHECKS = {"natnet": check_natnet, "zaber": check_zaber, "ur5": check_ur5, "biotac": check_biotac}
@@ -144,17 +159,26 @@ class RigCheck(Node):
             sections["biotac"] = {"port": self.param("biotac_port")}
         if not sections:
             raise ParamError(f"rig_config {path}: no device sections ({', '.join(CHECKS)})")
-        with ThreadPoolExecutor(len(sections)) as pool:
-            results = dict(zip(sections, pool.map(lambda n: CHECKS[n](sections[n], timeout_s), sections)))
-        missing = [line for line in results.values() if line]
+        with ThreadPoolExecutor(len(sections)) as pool:      # in parallel: the slowest one sets the time
+            results = dict(zip(sections, pool.map(lambda n: _timed(CHECKS[n], sections[n], timeout_s), sections)))
+        missing = [f"{line} ({took:.1f} s)" for line, took in results.values() if line]
         for line in missing:
             self.log(line)
+        slowest = max(results, key=lambda n: results[n][1])
+        took = f"checked in {results[slowest][1]:.1f} s, slowest {slowest}"
         if missing:
-            self.shutdown(f"{len(missing)} of {len(results)} device(s) missing", EXIT_MISSING)
+            self.shutdown(f"{len(missing)} of {len(results)} device(s) missing ({took})", EXIT_MISSING)
         else:
-            self.log(f"all {len(results)} devices answer: {', '.join(results)}")
+            self.log(f"all {len(results)} devices answer: {', '.join(results)} ({took})")
             if not self.param("stay"):
                 self.shutdown("devices present")
+
+
+def _timed(check, cfg: dict, timeout_s: float) -> tuple[str, float]:
+    """(the check's line, seconds it took)."""
+    start = time.monotonic()
+    line = check(cfg, timeout_s)
+    return line, time.monotonic() - start
 
 
 def _has_section(path: str, name: str) -> bool:

@@ -329,7 +329,8 @@ class RigSim(Node):
                                          stamp_ns=stamp)))
         start = max(k * PERIOD_NS, 1)
         items.append((start, self.robot_pub,
-                      RobotState(normal_force_kpa=out.normal_force_kpa, stamp_ns=start)))
+                      RobotState(normal_force_kpa=out.normal_force_kpa, stamp_ns=start,
+                                 period=self.last_command)))      # the command this F_N came from
         items.sort(key=lambda item: item[0])     # stable: P_AC before slow at equal stamps
         end = (k + 1) * PERIOD_NS
         items.append((end, self.truth_pub,

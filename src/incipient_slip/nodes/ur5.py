@@ -8,13 +8,22 @@ One process of its own (`RobotLink`) owns ur-rtde's `RTDEControlInterface` and
 `RTDEReceiveInterface` (the optional `[robot]` extra); the node's thread only talks ZeroMQ. Safety of its own, whatever the
 controller sent: the target is clamped to `safety_limit_kpa`; a measured F_N above it
 retracts; one period's move is at most `max_step_mm`; the TCP never goes more than
-`max_press_mm` below (or `max_lift_mm` above) where it started; a command whose period is not
-the next is refused and counted; without a fresh F_N it holds still. Before every move it
+`max_press_mm` below (or `max_lift_mm` above) where it started; a command for a period older
+than or equal to the last one is refused and counted (a later period supersedes missing ones,
+which are counted); without a fresh F_N it holds still. Before every move it
 checks protective stop, emergency stop and that the control script runs; on a stop it holds,
 publishes state `stopped` and waits for an explicit recovery (`slip robot recover`, which
 publishes /robot/recover): it never retries motion by itself. A lost connection recreates both
 interfaces in a fresh link process (state `reconnecting`, back-off from 0.5 s to 8 s); the
-command of that period is not replayed.
+command of that period is not replayed, and the new link takes the press depth from the
+robot's actual pose (never a remembered one), so the step limit holds across the restart.
+`RobotState.period` is the newest period whose move was made (-1 before the first).
+
+When the node is gone the robot's control script stops by itself: the link arms ur-rtde's
+watchdog (`watchdog_hz`) and kicks it; killed (SIGKILL, host power loss) nobody kicks it and the
+controller stops the program within 1/watchdog_hz s; a clean exit stops it at once. The finger
+stays where the last move left it (at most `safety_limit_kpa` when it was made); no motion
+happens until a node connects again.
 
 At start it names the fix when it can: no controller at the address, remote control off, RTDE
 registers IN_USE (a fieldbus holds them). Any of these is exit 2 with one line.
@@ -30,7 +39,7 @@ import time
 from dataclasses import dataclass
 
 from incipient_slip import control
-from incipient_slip.graph.params import Param
+from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.nodes.rig_check import apply_rig_config
 from incipient_slip.messages import BiotacSlow, GripCommand, RobotRecover, RobotState
@@ -97,11 +106,22 @@ class LinkConfig:
     press_sign: float
     connect_timeout_s: float
     startup_timeout_s: float = 0.0
+    watchdog_hz: float = 1.0
+
+    def depth_of(self, start_pose, pose) -> float:
+        """The press depth in mm (below `start_pose` along the pressing axis) of a TCP pose."""
+        return self.press_sign * (start_pose[self.press_axis] - pose[self.press_axis]) * 1000.0
+
+    def move_s(self) -> float:
+        """The longest one period's moveL takes: max_step_mm with a trapezoidal speed profile
+        (a triangular one when the move is too short to reach speed_m_s)."""
+        d, v, a = self.loop.max_step_mm / 1000.0, self.speed_m_s, self.accel_m_s2
+        return d / v + v / a if d >= v * v / a else 2.0 * math.sqrt(d / a)
 
 
-def link_main(cfg: LinkConfig, jobs, events, start_pose, depth_mm: float) -> None:
+def link_main(cfg: LinkConfig, jobs, events, start_pose) -> None:
     """The link process: owns both ur-rtde interfaces until told to quit or the connection drops."""
-    RobotLink(cfg, jobs, events, start_pose, depth_mm).run()
+    RobotLink(cfg, jobs, events, start_pose).run()
 
 
 class RobotLink:
@@ -112,12 +132,18 @@ class RobotLink:
     reconnect flag is never reset), and disconnecting it, or reading its state, during that loop
     crashed the whole process (segfault). On a drop this process reports and exits; the node
     starts a fresh one. Its constructors also hold Python's GIL while they connect.
+
+    The press depth is never carried over from an earlier link: each link derives it from the
+    robot's actual TCP pose when it connects, so the step limit holds across a restart. Once
+    connected it arms ur-rtde's watchdog (`setWatchdog`) and kicks it every loop: when neither
+    this process nor the node is left to kick it (killed, host down), the robot's control script
+    stops by itself within 1/watchdog_hz s. A clean exit stops the script too.
     """
 
-    def __init__(self, cfg: LinkConfig, jobs, events, start_pose, depth_mm: float):
+    def __init__(self, cfg: LinkConfig, jobs, events, start_pose):
         self.cfg, self.jobs, self.events = cfg, jobs, events
         self.host = cfg.host
-        self.start_pose, self.depth_mm = start_pose, depth_mm
+        self.start_pose, self.depth_mm = start_pose, 0.0
         self.snapshot = {"state": "ready", "tcp_pose": None, "protective_stop": False,
                          "emergency_stop": False, "program_running": False}
         self.control = self.receive = None
@@ -149,10 +175,15 @@ class RobotLink:
         try:
             self.receive = rtde_receive.RTDEReceiveInterface(self.host, self.cfg.frequency_hz, RECEIVE_VARIABLES)
             self.control = rtde_control.RTDEControlInterface(self.host, self.cfg.frequency_hz)
+            watchdog = self.control.setWatchdog(self.cfg.watchdog_hz)
         except Exception as exc:         # ur-rtde raises RuntimeError / logic_error texts
             raise RobotError(explain(exc, self.host)) from None
+        if not watchdog:
+            raise RobotError(f"robot {self.host}: the control script did not arm its watchdog")
+        pose = list(self.receive.getActualTCPPose())
         if self.start_pose is None:
-            self.start_pose = list(self.receive.getActualTCPPose())
+            self.start_pose = pose
+        self.depth_mm = self.cfg.depth_of(self.start_pose, pose)
 
     def run(self) -> None:
         try:
@@ -161,7 +192,8 @@ class RobotLink:
             self.events.put(("fatal", str(exc)))
             return
         self.events.put(("connected", f"connected to {self.host}; TCP at "
-                                      f"{[round(v, 4) for v in self.start_pose[:3]]} m", self.start_pose))
+                                      f"{[round(v, 4) for v in self.start_pose[:3]]} m, press depth "
+                                      f"{self.depth_mm:.3f} mm (from the actual pose)", self.start_pose))
         while True:
             try:
                 job = self.jobs.get(timeout=0.05)
@@ -171,9 +203,10 @@ class RobotLink:
                 break
             if not self._refresh():
                 self.events.put(("dropped", f"robot {self.host}: RTDE connection lost; starting "
-                                            f"fresh interfaces", self.depth_mm))
+                                            f"fresh interfaces"))
                 events_flush(self.events)
                 os._exit(0)          # no ur-rtde disconnect: see the class docstring
+            self.control.kickWatchdog()
             if job is None:
                 continue
             if job[0] == "press":
@@ -183,6 +216,10 @@ class RobotLink:
                 self._press(*job[1:])
             elif job[0] == "recover":
                 self._recover()
+        try:
+            self.control.stopScript()        # no node, no program: as the watchdog would
+        except Exception:
+            pass
         for iface in (self.control, self.receive):
             try:
                 iface.disconnect()
@@ -271,6 +308,7 @@ class RobotLink:
             deadline = time.monotonic() + 5.0
             while self.receive.getRuntimeState() != RUNTIME_PLAYING and time.monotonic() < deadline:
                 time.sleep(0.01)
+            self.control.setWatchdog(self.cfg.watchdog_hz)     # a stopped program lost it
         except Exception as exc:
             self.events.put(("recovery", False, f"recovery failed: {exc}"))
             return
@@ -310,6 +348,8 @@ class UR5(Node):
         "connect_timeout_s": Param(2.0, lo=0.1, hi=30.0, help="one connection attempt's timeout"),
         "startup_timeout_s": Param(0.0, lo=0.0, hi=600.0, help="keep trying to reach the robot this long at start"),
         "state_hz": Param(10.0, lo=0.1, hi=125.0, help="/robot/state rate besides each period"),
+        "watchdog_hz": Param(1.0, lo=0.1, hi=50.0,
+                             help="the control script stops when not kicked this often (node gone)"),
     }
 
     def __init__(self, **kwargs):
@@ -320,16 +360,23 @@ class UR5(Node):
                          p("max_press_mm"), p("max_lift_mm"))
         self.cfg = LinkConfig(p("robot_address"), p("rtde_hz"), p("speed_m_s"), p("accel_m_s2"),
                               loop, "xyz".index(p("press_axis")), p("press_sign"),
-                              p("connect_timeout_s"), p("startup_timeout_s"))
+                              p("connect_timeout_s"), p("startup_timeout_s"), p("watchdog_hz"))
+        if self.cfg.move_s() > 0.5 / self.cfg.watchdog_hz:       # a blocking moveL does not kick
+            raise ParamError(f"node 'ur5': watchdog_hz:={p('watchdog_hz'):g} needs a kick every "
+                             f"{1 / p('watchdog_hz'):g} s, but one move of max_step_mm at speed_m_s "
+                             f"takes up to {self.cfg.move_s():.2f} s (more than half of it): lower "
+                             f"watchdog_hz or max_step_mm, or raise speed_m_s")
         self.mp = multiprocessing.get_context("spawn")
         self.snapshot = {"state": "reconnecting", "tcp_pose": None, "protective_stop": False,
                          "emergency_stop": False, "program_running": False}
-        self.start_pose, self.depth_mm, self.connected_once = None, 0.0, False
+        self.start_pose, self.connected_once = None, False
         self.respawn_at, self.backoff_s = None, 0.5
         self.link = self.jobs = self.events = None
         self.measured_kpa = math.nan
         self.measured_at = -math.inf
-        self.last_period = None
+        self.last_period = None     # the newest period a command arrived for
+        self.applied_period = -1    # the newest period whose move the robot made
+        self.missed_periods = 0     # periods with no command (superseded by a later one)
         self.target_kpa = None      # hold=True keeps it
         self.recoveries: list[bool] = []   # outcome of each explicit recovery
         self.refused = 0
@@ -346,10 +393,14 @@ class UR5(Node):
         self.measured_kpa, self.measured_at = msg.pdc_kpa, time.monotonic()
 
     def on_command(self, msg: GripCommand):
-        k = msg.period
-        if k < 0 or (self.last_period is not None and k != self.last_period + 1):
-            expected = "a period >= 0" if self.last_period is None else f"period {self.last_period + 1}"
+        k, last = msg.period, self.last_period
+        if k < 0 or (last is not None and k <= last):      # older or repeated: refused
+            expected = "a period >= 0" if last is None else f"a period after {last}"
             return self.refuse(f"command for period {k}, expected {expected}")
+        if last is not None and k > last + 1:               # a later period supersedes missing ones
+            self.missed_periods += k - last - 1
+            self.warn(f"no command for period(s) {last + 1}..{k - 1}; period {k} supersedes them "
+                      f"({self.missed_periods} missed)", throttle_s=1.0, key="missed")
         self.last_period = k
         if self.respawn_at is not None:
             return self.refuse(f"period {k}: reconnecting to the robot; command not applied")
@@ -371,7 +422,7 @@ class UR5(Node):
         """Starts a link process (again after a drop, with the start pose and depth kept)."""
         self.jobs, self.events = self.mp.Queue(), self.mp.Queue()
         self.link = self.mp.Process(target=link_main, name="ur5-link", daemon=True,
-                                    args=(self.cfg, self.jobs, self.events, self.start_pose, self.depth_mm))
+                                    args=(self.cfg, self.jobs, self.events, self.start_pose))
         self.link.start()
         self.respawn_at = None
 
@@ -389,7 +440,7 @@ class UR5(Node):
             if self.respawn_at is not None or self.stopping:
                 return
         if not self.link.is_alive() and self.respawn_at is None:   # died without a word (a crash)
-            self.on_event(("dropped", f"robot link process ended (exit {self.link.exitcode})", self.depth_mm))
+            self.on_event(("dropped", f"robot link process ended (exit {self.link.exitcode})"))
 
     def on_event(self, event):
         kind = event[0]
@@ -405,13 +456,13 @@ class UR5(Node):
             else:
                 self._respawn_later()
         elif kind == "dropped":
-            self.depth_mm = event[2]
             self.warn(event[1])
             self._respawn_later()
         elif kind == "pressed":
             if event[2]:
                 self.warn(f"period {event[1]}: {event[2]}", throttle_s=5.0, key="limited")
-            self.publish_state(period=event[1])
+            self.applied_period = max(self.applied_period, event[1])
+            self.publish_state()
         elif kind == "recovery":
             self.recoveries.append(event[1])
             (self.log if event[1] else self.warn)(event[2])
@@ -428,7 +479,7 @@ class UR5(Node):
         self.respawn_at = time.monotonic() + self.backoff_s
         self.backoff_s = min(self.backoff_s * 2, 8.0)
 
-    def publish_state(self, period: int | None = None):
+    def publish_state(self):
         snap = self.snapshot
         pose = snap["tcp_pose"]
         if pose is None:
@@ -438,17 +489,18 @@ class UR5(Node):
             normal_force_kpa=force, tcp_z_mm=pose[2] * 1000.0,
             protective_stop=snap["protective_stop"], emergency_stop=snap["emergency_stop"],
             program_running=snap["program_running"], state=snap["state"],
-            period=-1 if period is None else period))
+            period=self.applied_period))
 
     def _close(self):
         if self.link is not None and self.link.is_alive():
-            if self.connected_once and self.respawn_at is None:
-                self.jobs.put(("quit",))          # disconnects ur-rtde cleanly
-                self.link.join(timeout=2.0)
+            # the link stops the robot's script and disconnects ur-rtde cleanly; one still
+            # connecting is terminated (its watchdog, once armed, stops the script then)
+            self.jobs.put(("quit",))
+            self.link.join(timeout=5.0)
             if self.link.is_alive():
                 self.link.terminate()
                 self.link.join(timeout=2.0)
-        self.log(f"refused {self.refused} command(s)")
+        self.log(f"refused {self.refused} command(s); {self.missed_periods} period(s) had none")
 
 
 def main(argv=None):

@@ -8,11 +8,14 @@ The file format follows ROS 2's YAML launch frontend. A top-level `launch:` list
       - node:
           exec: estimator            # incipient_slip.nodes.estimator (pkg: graph for the tool
                                      # processes recorder, replay, monitor), a dotted module, or a .py path
-          name: estimator            # default: the exec's last part
+          name: estimator            # default: a module's last part, a .py path's stem
+                                     # (unique in the launch: a name used twice is refused)
           param: [{name: method, value: "$(var method)"}]
           remap: [{from: /biotac/pac, to: /biotac/pac_raw}]
           required: true             # its exit ends the launch (with its exit code)
           respawn: false             # restart it when it exits (after respawn_delay s)
+          gate: false                # true: the nodes after it start once it exited 0; any
+                                     # other exit ends the launch with its code (a device check)
           if: "$(var rig) == sim"    # or unless:; also on group and include
       - group: {if: "$(var rig) == hardware", actions: [...]}
       - include: {file: other.yaml, arg: [{name: rig, value: "$(var rig)"}]}

@@ -24,7 +24,7 @@ class LaunchError(Exception):
 ACTION_KEYS = {
     "arg": {"name", "default", "description"},
     "node": {"exec", "pkg", "name", "param", "remap", "required", "respawn", "respawn_delay",
-             "if", "unless", "env"},
+             "gate", "if", "unless", "env"},
     "group": {"actions", "children", "if", "unless"},
     "include": {"file", "arg", "if", "unless"},
 }

@@ -41,6 +41,7 @@ class NodeSpec:
     remaps: dict[str, str] = field(default_factory=dict)
     required: bool = False
     respawn: bool = False
+    gate: bool = False        # the nodes after it start only once it exited 0
     respawn_delay: float = 1.0
     env: dict[str, str] = field(default_factory=dict)
     source: str = ""
@@ -75,6 +76,7 @@ class LaunchDescription:
                 "name": n.name, "exec": n.exec, "command": " ".join(n.argv()), "params": n.params,
                 "remaps": n.remaps, "required": n.required, "respawn": n.respawn,
                 **({"respawn_delay": n.respawn_delay} if n.respawn else {}),
+                **({"gate": True} if n.gate else {}),
                 **({"env": env} if env else {}),
                 "waits_for": sorted({r for names in readers.values() for r in names}),
                 "source": n.source})
@@ -209,11 +211,18 @@ def _exec_target(exec_: str, pkg: str, scope: Scope, line) -> str:
     return module
 
 
+def _default_name(exec_: str) -> str:
+    """A node's name when it has no `name:`: a .py path's file stem, a module's last part
+    (`incipient_slip.graph.recorder` is `recorder`, not its package's `graph`)."""
+    if exec_.endswith(".py") or "/" in exec_:
+        return Path(exec_).stem
+    return exec_.rsplit(".", 1)[-1]
+
+
 def _resolve_node(body: Marked, scope: Scope) -> NodeSpec:
     lines = body.lines
     exec_ = scope.text(_need(body, "exec", scope, "node"), lines["exec"], "exec")
-    name = (scope.text(body["name"], lines["name"], "name") if "name" in body
-            else Path(exec_).stem.rsplit(".", 1)[-1])
+    name = scope.text(body["name"], lines["name"], "name") if "name" in body else _default_name(exec_)
     if not re.fullmatch(r"[A-Za-z_][\w.-]*", name):
         raise scope.error(lines.get("name", body.line), "name",
                           f"node name {name!r}: use letters, digits, '_', '.', '-'")
@@ -245,7 +254,7 @@ def _resolve_node(body: Marked, scope: Scope) -> NodeSpec:
             if not topic.startswith("/") or " " in topic:
                 raise scope.error(item.lines[key], key, f"topic {topic!r} must start with '/'")
         spec.remaps[src] = dst
-    for key in ("required", "respawn"):
+    for key in ("required", "respawn", "gate"):
         if key in body:
             setattr(spec, key, scope.flag(body[key], lines[key], key))
     if "respawn_delay" in body:

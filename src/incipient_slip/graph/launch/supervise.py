@@ -146,11 +146,16 @@ class Launcher:
             return 0
         for warning in self.desc.warnings:
             self.say(f"warning: {warning}")
-        self.say(f"graph {self.graph_dir}: starting {', '.join(p.spec.name for p in self.procs)}")
+        self.say(f"graph {self.graph_dir}: starting "
+                 f"{', '.join(p.spec.name + (' (gate)' if p.spec.gate else '') for p in self.procs)}")
         for proc in self.procs:
             if self._signal is not None:
                 break
             self._start(proc)
+            if proc.spec.gate:
+                rc = self._pass_gate(proc)
+                if rc is not None and rc != 0:
+                    return rc
         first_failure = 0
         while True:
             if self._signal is not None:
@@ -203,6 +208,26 @@ class Launcher:
                 self.say("all nodes have exited")
                 return first_failure
             time.sleep(TICK_S)
+
+    def _pass_gate(self, proc: _Proc) -> int | None:
+        """Waits for a gate node to exit. Exit 0: None (start the rest); a signal: None (the
+        main loop shuts down); any other exit: the graph is shut down, the launch's exit code."""
+        while proc.popen.poll() is None and self._signal is None:
+            time.sleep(TICK_S)
+        if self._signal is not None:
+            return None
+        rc = proc.popen.returncode
+        self._ended(proc, rc)
+        later = [p.spec.name for p in self.procs if p.popen is None]
+        if rc == 0:
+            self.say(f"gate {proc.spec.name} passed; starting {', '.join(later) or 'nothing more'}")
+            return None
+        self.say(f"gate {proc.spec.name} exited with {describe(rc)}; not started: {', '.join(later)}")
+        self._shutdown()
+        last = proc.last_err.decode(errors="replace").strip()
+        self.say(f"launch ends with code {exit_code(rc)}: gate {proc.spec.name} {describe(rc)}"
+                 + (f": {last}" if last else ""))
+        return exit_code(rc)
 
     def _shutdown(self) -> None:
         """Stops every node: SIGTERM in reverse start order, then SIGKILL at the deadline
