@@ -11,6 +11,12 @@ The graph directory is, in order: `$SLIP_GRAPH_DIR`; else `<base>/<graph>` with 
 `$SLIP_GRAPH` or "default" and base = `$XDG_RUNTIME_DIR/incipient-slip` when that exists, else
 `/tmp/incipient-slip-<uid>`. A node started by hand and `slip topic echo` in another shell find
 a launched graph because they all default to the same directory.
+
+Trust: like ssh with its keys, a graph directory (and the base directory above it) that is not
+owned by the current user, or that group or others may write, is refused (`GraphDirError`, one
+line saying how to fix it); so are announcement files not owned by the current user or writable
+by others (skipped, counted in `Discovery.refused`). Another local user who created the
+directory first could otherwise announce a publisher that our nodes subscribe to.
 """
 from __future__ import annotations
 
@@ -22,7 +28,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["graph_dir", "GraphNameError", "NodeInfo", "announce", "withdraw", "scan", "remove_pid",
+__all__ = ["graph_dir", "GraphNameError", "GraphDirError", "check_graph_dir", "NodeInfo", "announce", "withdraw", "scan", "remove_pid",
            "ipc_endpoint", "Discovery", "GRAPH_DIR_ENV", "GRAPH_ENV", "TRANSPORT_ENV"]
 
 GRAPH_DIR_ENV = "SLIP_GRAPH_DIR"
@@ -36,6 +42,35 @@ _PID_FILE = re.compile(r"^\.?(?:.*-)?(\d+)(?:\.node\.json(?:\.tmp)?|\.sock)$")  
 
 class GraphNameError(ValueError):
     """A graph name (--graph, $SLIP_GRAPH) that cannot be a directory name."""
+
+
+class GraphDirError(GraphNameError):
+    """A graph directory this user must not trust: owned by someone else, or writable by others.
+    (A GraphNameError, so every command that reports a bad graph name reports it the same way.)"""
+
+
+def _unsafe(st: os.stat_result) -> str:
+    """Why a file or directory with this stat must not be trusted ("" if it can be)."""
+    if st.st_uid != os.getuid():
+        return f"owned by uid {st.st_uid}, not by you (uid {os.getuid()})"
+    if st.st_mode & 0o022:
+        who = " and ".join(w for bit, w in ((0o020, "group"), (0o002, "others")) if st.st_mode & bit)
+        return f"writable by {who} (mode {st.st_mode & 0o777:o})"
+    return ""
+
+
+def check_graph_dir(path: Path) -> Path:
+    """`path` if it is a directory only the current user can write; GraphDirError otherwise."""
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        raise GraphDirError(f"graph directory {path}: {exc.strerror}") from None
+    why = _unsafe(st)
+    if why:
+        fix = (f"remove it (another user may have created it) or set {GRAPH_DIR_ENV} to a directory of "
+               f"your own" if st.st_uid != os.getuid() else f"chmod go-w {path}")
+        raise GraphDirError(f"graph directory {path} is {why}; refusing to use it: {fix}")
+    return path
 
 
 def graph_dir(graph: str | None = None, create: bool = True) -> Path:
@@ -54,9 +89,13 @@ def graph_dir(graph: str | None = None, create: bool = True) -> Path:
         else:
             base = Path(tempfile.gettempdir()) / f"incipient-slip-{os.getuid()}"
         path = base / name
+        if create:
+            base.mkdir(parents=True, exist_ok=True, mode=0o700)
+        if base.exists():
+            check_graph_dir(base)
     if create:
         path.mkdir(parents=True, exist_ok=True, mode=0o700)
-    return path
+    return check_graph_dir(path) if path.exists() else path
 
 
 def safe_name(name: str) -> str:
@@ -161,9 +200,10 @@ def remove_pid(directory: Path, pid: int) -> int:
     return removed
 
 
-def scan(directory: Path, clean: bool = True) -> list[NodeInfo]:
+def scan(directory: Path, clean: bool = True, refused: dict[str, str] | None = None) -> list[NodeInfo]:
     """The nodes announced in a graph directory; with `clean`, files of dead processes
-    (announcements, ipc sockets with no announcement) are removed."""
+    (announcements, ipc sockets with no announcement) are removed. Announcements this user must
+    not trust (see `check_graph_dir`) are skipped, and put in `refused` ({file name: why})."""
     out = []
     try:
         entries = list(os.scandir(directory))
@@ -180,6 +220,11 @@ def scan(directory: Path, clean: bool = True) -> list[NodeInfo]:
                         pass
             continue
         try:
+            why = _unsafe(entry.stat(follow_symlinks=False))
+            if why or entry.is_symlink():
+                if refused is not None:
+                    refused[entry.name] = why or "a symbolic link"
+                continue
             raw = json.loads(Path(entry.path).read_text())
             info = NodeInfo(str(raw["name"]), int(raw["pid"]), str(raw["endpoint"]),
                             dict(raw.get("publishes", {})), dict(raw.get("subscribes", {})),
@@ -202,9 +247,11 @@ class Discovery:
     coarse clock, so two changes in one tick could otherwise be missed).
     """
 
-    def __init__(self, directory: Path, full_scan_s: float = 1.0):
+    def __init__(self, directory: Path, full_scan_s: float = 1.0, log=None):
         self.directory = directory
         self.full_scan_s = full_scan_s
+        self.log = log or (lambda text: None)      # one line per refused announcement
+        self.refused: dict[str, str] = {}          # announcement file -> why it is not trusted
         self.endpoints: set[str] = set()
         self._mtime = None
         self._last_full = 0.0
@@ -218,7 +265,11 @@ class Discovery:
         if mtime == self._mtime and now - self._last_full < self.full_scan_s:
             return [], []
         self._mtime, self._last_full = mtime, now
-        current = {info.endpoint for info in scan(self.directory)}
+        refused: dict[str, str] = {}
+        current = {info.endpoint for info in scan(self.directory, refused=refused)}
+        for name in refused.keys() - self.refused.keys():
+            self.log(f"refused announcement {self.directory / name}: {refused[name]}")
+        self.refused.update(refused)
         added, removed = sorted(current - self.endpoints), sorted(self.endpoints - current)
         self.endpoints = current
         return added, removed

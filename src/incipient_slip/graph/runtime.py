@@ -247,7 +247,8 @@ class Node:
         self._log_prefix = "" if os.environ.get("SLIP_LAUNCHED") else f"[{self.name}] "
 
         self._dir = discovery.graph_dir() if graph_dir is None else Path(graph_dir)
-        self._dir.mkdir(parents=True, exist_ok=True)
+        self._dir.mkdir(parents=True, exist_ok=True, mode=0o700)
+        discovery.check_graph_dir(self._dir)
         self._ctx = context or zmq.Context.instance()
         self._xpub = self._ctx.socket(zmq.XPUB)
         self._xpub.setsockopt(zmq.XPUB_VERBOSE, 1)
@@ -266,7 +267,7 @@ class Node:
         self._sub_recv = self._sub.recv_multipart
         self._rcvtimeo = -1
         self._info = discovery.NodeInfo(self.name, os.getpid(), endpoint, started_ns=time.time_ns())
-        self._discovery = discovery.Discovery(self._dir)
+        self._discovery = discovery.Discovery(self._dir, log=lambda text: self.warn(text))
         self._connected: set[str] = set()
         self._retiring: dict[str, float] = {}   # endpoint -> monotonic time to disconnect
         self._next_scan = 0.0
