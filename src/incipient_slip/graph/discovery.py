@@ -253,23 +253,27 @@ class Discovery:
         self.log = log or (lambda text: None)      # one line per refused announcement
         self.refused: dict[str, str] = {}          # announcement file -> why it is not trusted
         self.endpoints: set[str] = set()
+        self.infos: list[NodeInfo] = []
         self._mtime = None
         self._last_full = 0.0
 
-    def changes(self) -> tuple[list[str], list[str]]:
+    def changes(self, accept=None) -> tuple[list[str], list[str]]:
+        """(endpoints to connect, endpoints to disconnect) since the last call, of the announced
+        nodes for which `accept(info)` is true (all when None; asked at every call, so a node
+        whose announcement or whose reader's rule changed moves in or out at once)."""
         now = time.monotonic()
         try:
             mtime = os.stat(self.directory).st_mtime_ns
         except FileNotFoundError:
             mtime = None
-        if mtime == self._mtime and now - self._last_full < self.full_scan_s:
-            return [], []
-        self._mtime, self._last_full = mtime, now
-        refused: dict[str, str] = {}
-        current = {info.endpoint for info in scan(self.directory, refused=refused)}
-        for name in refused.keys() - self.refused.keys():
-            self.log(f"refused announcement {self.directory / name}: {refused[name]}")
-        self.refused.update(refused)
+        if mtime != self._mtime or now - self._last_full >= self.full_scan_s:
+            self._mtime, self._last_full = mtime, now
+            refused: dict[str, str] = {}
+            self.infos = scan(self.directory, refused=refused)
+            for name in refused.keys() - self.refused.keys():
+                self.log(f"refused announcement {self.directory / name}: {refused[name]}")
+            self.refused.update(refused)
+        current = {info.endpoint for info in self.infos if accept is None or accept(info)}
         added, removed = sorted(current - self.endpoints), sorted(self.endpoints - current)
         self.endpoints = current
         return added, removed

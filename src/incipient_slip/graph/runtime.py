@@ -48,7 +48,7 @@ from incipient_slip.errors import EXIT_FAILURE, EXIT_USAGE
 from incipient_slip.graph.params import ParamError, as_param, declared_params, merge_params, parse_node_argv
 
 __all__ = ["Node", "Publisher", "RawPublisher", "Subscription", "RawSubscription", "Timer",
-           "run_node", "POLL_S", "LINGER_MS", "ANY_TOPIC", "READERS_ENV", "HELLO"]
+           "run_node", "POLL_S", "LINGER_MS", "ANY_TOPIC", "READERS_ENV", "WRITERS_ENV", "HELLO"]
 
 POLL_S = 0.1              # longest a loop blocks before it looks at the stop flag
 LINGER_MS = 500           # longest close() waits to flush queued messages
@@ -64,6 +64,11 @@ ANY_TOPIC = "*"
 # Set by the launcher for each node: JSON {output topic after remaps: [reader node names]}, the
 # readers in this launch that `wait_for_readers` waits for. Unset (a node started by hand): none.
 READERS_ENV = "SLIP_READERS"
+# Set by the launcher for each node: JSON {input topic after remaps: [writer node names]}. A node
+# accepts those topics only from those nodes: it does not connect to a node that announces one of
+# them without being its writer (a forged command or state; counted in `refused`, one warning
+# each). Unset (a node started by hand, a recorder): every publisher is accepted.
+WRITERS_ENV = "SLIP_WRITERS"
 # Each node, once its subscriptions are made, also subscribes HELLO + its name: a subscription no
 # one publishes on, whose XPUB message tells a publisher WHICH node is now subscribed (plain XPUB
 # subscription messages carry no identity). 0xFF sorts after every "/..." topic, which matters:
@@ -208,7 +213,8 @@ class Node:
     `params` (overrides of PARAMS), `remaps` ({from topic: to topic}), `node_name` (overrides the
     name given by the subclass), `graph_dir` (default: discovery.graph_dir()), `raw_params` (the text
     each command-line param came from), `heartbeat_s` (0 disables the heartbeat), `readers`
-    ({output topic: reader node names} for `wait_for_readers`; default: $SLIP_READERS).
+    ({output topic: reader node names} for `wait_for_readers`; default: $SLIP_READERS),
+    `writers` ({input topic: the only node names it is accepted from}; default: $SLIP_WRITERS).
     """
 
     PARAMS: dict[str, Any] = {}
@@ -225,7 +231,8 @@ class Node:
     def __init__(self, name: str, *, params: dict | None = None, remaps: dict | None = None,
                  node_name: str | None = None, graph_dir=None, raw_params: dict | None = None,
                  heartbeat_s: float = HEARTBEAT_S, context: zmq.Context | None = None,
-                 readers: dict[str, list[str]] | None = None):
+                 readers: dict[str, list[str]] | None = None,
+                 writers: dict[str, list[str]] | None = None):
         self.name = node_name or name
         self.params = merge_params(self.name, declared_params(type(self)), params or {}, raw=raw_params)
         self.remaps = dict(remaps or {})
@@ -243,7 +250,9 @@ class Node:
         self._warned: dict[Any, list] = {}
         self._shutdown_hooks: list[Callable[[], Any]] = []
         self._said_hello = False
-        self._readers = _readers_from_env(self.name) if readers is None else dict(readers)
+        self._readers = _table_from_env(READERS_ENV, self.name) if readers is None else dict(readers)
+        self._writers = _table_from_env(WRITERS_ENV, self.name) if writers is None else dict(writers)
+        self.refused: dict[tuple[str, int], str] = {}     # (name, pid) of a refused publisher -> why
         self._log_prefix = "" if os.environ.get("SLIP_LAUNCHED") else f"[{self.name}] "
 
         self._dir = discovery.graph_dir() if graph_dir is None else Path(graph_dir)
@@ -270,6 +279,7 @@ class Node:
         self._discovery = discovery.Discovery(self._dir, log=lambda text: self.warn(text))
         self._connected: set[str] = set()
         self._retiring: dict[str, float] = {}   # endpoint -> monotonic time to disconnect
+        self._refused_endpoints: set[str] = set()
         self._next_scan = 0.0
         _open_nodes.add(self)
         self._announce()
@@ -529,7 +539,7 @@ class Node:
 
     def _discover(self) -> None:
         self._next_scan = time.monotonic() + POLL_S
-        added, removed = self._discovery.changes()
+        added, removed = self._discovery.changes(self._accepts if self._writers else None)
         now = time.monotonic()
         for endpoint in added:
             self._retiring.pop(endpoint, None)
@@ -538,9 +548,11 @@ class Node:
                 self._connected.add(endpoint)
         # A publisher that withdrew may still have frames in our pipe: ZeroMQ discards them on
         # disconnect, so disconnect only after a grace period in which the loop reads them.
+        # A publisher refused as a forger is cut at once (no grace: its frames are not wanted).
         for endpoint in removed:
             if endpoint in self._connected:
-                self._retiring.setdefault(endpoint, now + DISCONNECT_GRACE_S)
+                forged = endpoint in self._refused_endpoints
+                self._retiring.setdefault(endpoint, now if forged else now + DISCONNECT_GRACE_S)
         for endpoint, due in list(self._retiring.items()):
             if due <= now:
                 del self._retiring[endpoint]
@@ -549,6 +561,27 @@ class Node:
                 except zmq.ZMQError:
                     pass
                 self._connected.discard(endpoint)
+
+    def _accepts(self, info: discovery.NodeInfo) -> bool:
+        """Whether to connect to an announced node, given the launch's writers of our inputs:
+        never to one that announces an input of ours without being its declared writer (counted
+        and logged once), else to the declared writers and to the publishers of the inputs that
+        have none (an operator's command) or of every topic for a node that reads them all."""
+        writers = self._writers
+        for topic in info.publishes:
+            if topic in writers and info.name not in writers[topic]:
+                key = (info.name, info.pid)
+                if key not in self.refused:
+                    self.refused[key] = (f"publisher {info.name} (pid {info.pid}) refused: it "
+                                         f"announces {topic}, whose writer in this launch is "
+                                         f"{' or '.join(writers[topic])}")
+                    self.warn(f"{self.refused[key]} ({len(self.refused)} refused)")
+                self._refused_endpoints.add(info.endpoint)
+                return False
+        if any(info.name in names for names in writers.values()):
+            return True
+        reads = self._info.subscribes
+        return ANY_TOPIC in reads or any(t in reads for t in info.publishes)
 
     def _handle(self, frames: list) -> None:
         recv_ns = time.time_ns()
@@ -643,15 +676,15 @@ def _withdraw_open_nodes() -> None:
         discovery.withdraw(node._info)
 
 
-def _readers_from_env(node: str) -> dict[str, list[str]]:
-    text = os.environ.get(READERS_ENV)
+def _table_from_env(env: str, node: str) -> dict[str, list[str]]:
+    text = os.environ.get(env)
     if not text:
         return {}
     try:
         table = json.loads(text)
         return {str(t): [str(n) for n in names] for t, names in table.items()}
     except (ValueError, AttributeError, TypeError):
-        raise ParamError(f"node {node!r}: ${READERS_ENV} is not JSON {{topic: [node names]}}: "
+        raise ParamError(f"node {node!r}: ${env} is not JSON {{topic: [node names]}}: "
                          f"{text[:80]!r}") from None
 
 
