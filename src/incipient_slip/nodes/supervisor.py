@@ -6,7 +6,9 @@ Feeds `/object/pose` (travel y), `/robot/state` (applied F_N), `/slip/estimate` 
 `/grip/command` (which closes each period) to `control.RunJudge`, which judges by its own count
 of periods: y > 1.5 mm or F_N at the 6.0 kPa limit fails, repeated holds are a fault, `max_steps`
 periods succeed; a command whose period is not the next one is dropped. No command within a
-wall-clock timeout is a fault ("graph silent"). `period_origin: tick` (device clocks, host-time
+wall-clock timeout is a fault ("graph silent"). `lockstep: true` (the simulated rig waits for
+each command): a period is judged once its command, its data or the rig's tick that ends it, and
+its estimate are in, never on `data_wait_s`; the wall-clock timeouts are liveness limits only. `period_origin: tick` (device clocks, host-time
 stamps): pose and F_N stamps are taken on the period clock that the actuator's first tick sets
 (`control.PeriodOrigin`), as the estimator does. It publishes `RunEvent`s, writes the JSON run
 summary (also when interrupted) with the per-period traces (`/sim/truth`, the simulated rig's true
@@ -47,6 +49,7 @@ class Supervisor(Node):
         "silence_timeout_s": Param(5.0, **POSITIVE, help="wall clock between two grip commands (s)"),
         "data_wait_s": Param(3.0, **POSITIVE, help="longest wait for a period's data after its command (s)"),
         "quiet": Param(False, help="true: no one-screen summary (batch runs)"),
+        "lockstep": Param(False, help="true: the rig waits for each command; periods are judged on messages only, never on data_wait_s"),
         "period_origin": Param("stamps", choices=control.PERIOD_ORIGINS,
                                help="stamps: period k is stamp // T; tick: from the actuator's first tick (device clocks)"),
         # recorded in the summary only
@@ -66,8 +69,7 @@ class Supervisor(Node):
         self.steps_sent = 0
         self.events = self.create_publisher(RunEvent)
         self.origin = control.PeriodOrigin(p("period_origin"), held_max=2000)
-        if self.origin.origin_ns is None:
-            self.create_subscription(ActuatorState, self.on_tick)
+        self.create_subscription(ActuatorState, self.on_tick)
         self.create_subscription(ObjectPose, lambda m: m.tracking_valid and self.on_rig(self.judge.pose, m.stamp_ns, m.travel_mm))
         self.create_subscription(RobotState, lambda m: self.on_rig(self.judge.robot, m.stamp_ns, m.normal_force_kpa))
         self.create_subscription(SlipEstimate, lambda m: self.judge.estimate(m.period, m.stick_ratio, m.valid))
@@ -88,8 +90,10 @@ class Supervisor(Node):
                 record(stamp, value, time.monotonic())
 
     def on_tick(self, msg: ActuatorState) -> None:
-        for item in self.origin.tick(msg.step_index, msg.stamp_ns):
-            self.on_rig(*item)
+        if self.origin.origin_ns is None:
+            for item in self.origin.tick(msg.step_index, msg.stamp_ns):
+                self.on_rig(*item)
+        self.judge.rig_tick(msg.step_index)
 
     def on_command(self, msg: GripCommand) -> None:
         first = self.judge.next_period is None
