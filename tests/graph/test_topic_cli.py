@@ -20,7 +20,7 @@ def test_a_bad_graph_name_is_one_line_and_exit_2(monkeypatch, capsys, tool, how)
     assert err.count("\n") == 1 and f"slip topic {tool[0]}: error: graph name 'a+b'" in err
 
 
-@pytest.mark.timeout(30)
+@pytest.mark.timeout(120)
 def test_echo_with_nothing_running_says_it_is_waiting_instead_of_hanging_silently(tmp_path):
     import os
     import subprocess
@@ -28,10 +28,10 @@ def test_echo_with_nothing_running_says_it_is_waiting_instead_of_hanging_silentl
     env = dict(os.environ, SLIP_GRAPH_DIR=str(tmp_path / "empty-graph"))
     proc = subprocess.Popen([sys.executable, "-m", "incipient_slip.cli", "topic", "echo", "/slip/estimate"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    try:
-        out, err = proc.communicate(timeout=tools.NOTHING_YET_S + 3)
-    except subprocess.TimeoutExpired:
+    try:        # the event: its first stderr line (a loaded machine may take long to start it)
+        err = proc.stderr.readline()
+    finally:
         proc.terminate()
-        out, err = proc.communicate(timeout=10)
+        out, _ = proc.communicate(timeout=60)
     assert out == ""
     assert "no message on /slip/estimate yet in graph" in err and "empty-graph" in err

@@ -23,6 +23,8 @@ from __future__ import annotations
 import json
 import os
 import re
+import socket
+import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -35,6 +37,7 @@ GRAPH_DIR_ENV = "SLIP_GRAPH_DIR"
 GRAPH_ENV = "SLIP_GRAPH"
 TRANSPORT_ENV = "SLIP_TRANSPORT"     # "ipc" (default) or "tcp" (127.0.0.1, random port)
 SUFFIX = ".node.json"
+_PROBE_TIMEOUT_S = 0.2              # a loopback tcp probe that takes longer proves nothing
 _MAX_IPC_PATH = 100                  # sun_path is 108 bytes including the NUL; keep a margin
 _SAFE = re.compile(r"[^A-Za-z0-9_.-]")
 _PID_FILE = re.compile(r"^\.?(?:.*-)?(\d+)(?:\.node\.json(?:\.tmp)?|\.sock)$")   # what a node leaves
@@ -125,6 +128,8 @@ class NodeInfo:
     subscribes: dict[str, str] = field(default_factory=dict)
     started_ns: int = 0
     path: Path | None = None
+    pidns: str = ""       # the PID namespace its pid is in ("pid:[4026531836]"); "" unknown
+    netns: str = ""       # the network namespace its tcp endpoint is in; "" unknown
 
 
 def announce(directory: Path, info: NodeInfo) -> Path:
@@ -133,7 +138,8 @@ def announce(directory: Path, info: NodeInfo) -> Path:
     tmp = directory / f".{path.name}.tmp"
     tmp.write_text(json.dumps({"name": info.name, "pid": info.pid, "endpoint": info.endpoint,
                                "publishes": info.publishes, "subscribes": info.subscribes,
-                               "started_ns": info.started_ns}))
+                               "started_ns": info.started_ns, "pidns": info.pidns,
+                               "netns": info.netns}))
     os.replace(tmp, path)
     info.path = path
     return path
@@ -150,17 +156,28 @@ def withdraw(info: NodeInfo) -> None:
                 pass
 
 
+def namespace(kind: str) -> str:
+    """This process's namespace of `kind` ("pid", "net"), e.g. "pid:[4026531836]"; "" if unknown."""
+    try:
+        return os.readlink(f"/proc/self/ns/{kind}")
+    except OSError:
+        return ""
+
+
 def _alive(pid: int, started_ns: int = 0) -> bool:
-    """True if process `pid` exists and (when known) is not younger than `started_ns`, the
-    wall time its node announced itself: a pid reused by a newer process is not that node."""
+    """True if process `pid` of OUR pid namespace exists and (when known) is not younger than
+    `started_ns`, the wall time (time.time_ns) its node announced itself: a pid reused by a newer
+    process is not that node. A started_ns before the machine booted is no wall time (a client
+    that wrote a monotonic value): it is not used."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:
         return True
-    if started_ns:
-        born_ns = _start_time_ns(pid)
+    boot_ns = _boot_time_ns()
+    if started_ns and boot_ns is not None and started_ns > boot_ns:
+        born_ns = _start_time_ns(pid, boot_ns)
         # 10 s of slack: boot-time arithmetic rounds to clock ticks, and a wall clock stepped
         # back must not make a live node look dead (its files would be removed under it)
         if born_ns is not None and born_ns > started_ns + 10_000_000_000:
@@ -168,17 +185,54 @@ def _alive(pid: int, started_ns: int = 0) -> bool:
     return True
 
 
-def _start_time_ns(pid: int) -> int | None:
+def _boot_time_ns() -> int | None:
+    try:
+        for line in Path("/proc/stat").read_text().splitlines():
+            if line.startswith("btime "):
+                return int(line.split()[1]) * 1_000_000_000
+    except (OSError, ValueError):
+        pass
+    return None
+
+
+def _start_time_ns(pid: int, boot_ns: int) -> int | None:
     """Wall time process `pid` started (Linux /proc), or None where that is not known."""
     try:
         stat = Path(f"/proc/{pid}/stat").read_text()
         ticks = int(stat.rsplit(")", 1)[1].split()[19])      # field 22, starttime
-        for line in Path("/proc/stat").read_text().splitlines():
-            if line.startswith("btime "):
-                return int(line.split()[1]) * 1_000_000_000 + ticks * 1_000_000_000 // os.sysconf("SC_CLK_TCK")
+        return boot_ns + ticks * 1_000_000_000 // os.sysconf("SC_CLK_TCK")
     except (OSError, ValueError, IndexError):
-        pass
-    return None
+        return None
+
+
+def _refuses(endpoint: str, netns: str = "") -> bool:
+    """True only if the endpoint provably has no listener: a connection to its ipc socket (or to
+    its loopback tcp port, when announced from our network namespace) is refused, or the ipc
+    socket file is gone. A probe that is accepted, times out or cannot be made proves nothing."""
+    if endpoint.startswith("ipc://"):
+        family, address = socket.AF_UNIX, endpoint[6:]
+    elif endpoint.startswith("tcp://127.0.0.1:") and netns and netns == namespace("net"):
+        family, address = socket.AF_INET, ("127.0.0.1", int(endpoint.rsplit(":", 1)[1]))
+    else:
+        return False
+    with socket.socket(family, socket.SOCK_STREAM) as probe:
+        probe.settimeout(_PROBE_TIMEOUT_S)
+        try:
+            probe.connect(address)
+        except (ConnectionRefusedError, FileNotFoundError):
+            return True
+        except OSError:
+            return False
+    return False
+
+
+def is_dead(info: NodeInfo) -> bool:
+    """True only when the node of an announcement is proven gone: its pid is dead (or reused)
+    in our own pid namespace, or, for a node in another or an unknown pid namespace (a
+    container), its endpoint refuses connections. What cannot be proven dead is alive."""
+    if info.pidns and info.pidns == namespace("pid"):
+        return not _alive(info.pid, info.started_ns)
+    return _refuses(info.endpoint, info.netns)
 
 
 def remove_pid(directory: Path, pid: int) -> int:
@@ -200,24 +254,30 @@ def remove_pid(directory: Path, pid: int) -> int:
     return removed
 
 
-def scan(directory: Path, clean: bool = True, refused: dict[str, str] | None = None) -> list[NodeInfo]:
-    """The nodes announced in a graph directory; with `clean`, files of dead processes
-    (announcements, ipc sockets with no announcement) are removed. Announcements this user must
-    not trust (see `check_graph_dir`) are skipped, and put in `refused` ({file name: why})."""
+def scan(directory: Path, clean: bool = True, refused: dict[str, str] | None = None,
+         log=None) -> list[NodeInfo]:
+    """The nodes announced in a graph directory; with `clean`, the files of nodes proven dead
+    (`is_dead`; ipc sockets with no announcement: nothing listens) are removed, each with one
+    line to `log` (default: stderr). Announcements this user must not trust (see
+    `check_graph_dir`) are skipped, and put in `refused` ({file name: why})."""
+    log = log or _stderr
     out = []
     try:
         entries = list(os.scandir(directory))
     except FileNotFoundError:
         return out
+    names = {e.name for e in entries}
     for entry in entries:
         if not entry.name.endswith(SUFFIX) or entry.name.startswith("."):
-            if clean and entry.name.endswith(".sock"):
-                m = _PID_FILE.match(entry.name)
-                if m and not _alive(int(m.group(1))):
-                    try:
-                        os.unlink(entry.path)
-                    except OSError:
-                        pass
+            # a socket is bound before its announcement is written: one with no announcement
+            # is removed only when nothing listens on it
+            if clean and entry.name.endswith(".sock") and not any(
+                    n.endswith(SUFFIX) and n[:-len(SUFFIX)] == entry.name[:-5] for n in names) \
+                    and _refuses("ipc://" + entry.path):
+                try:
+                    os.unlink(entry.path)
+                except OSError:
+                    pass
             continue
         try:
             why = _unsafe(entry.stat(follow_symlinks=False))
@@ -228,15 +288,22 @@ def scan(directory: Path, clean: bool = True, refused: dict[str, str] | None = N
             raw = json.loads(Path(entry.path).read_text())
             info = NodeInfo(str(raw["name"]), int(raw["pid"]), str(raw["endpoint"]),
                             dict(raw.get("publishes", {})), dict(raw.get("subscribes", {})),
-                            int(raw.get("started_ns", 0)), Path(entry.path))
+                            int(raw.get("started_ns", 0)), Path(entry.path),
+                            str(raw.get("pidns", "")), str(raw.get("netns", "")))
         except (OSError, ValueError, KeyError, TypeError):
             continue    # being replaced right now, or not ours
-        if not _alive(info.pid, info.started_ns):
+        if is_dead(info):
             if clean:
+                log(f"removed the announcement of node {info.name} (pid {info.pid}, {entry.name}): "
+                    f"its process is gone")
                 withdraw(info)
             continue
         out.append(info)
     return out
+
+
+def _stderr(text: str) -> None:
+    print(f"[discovery] {text}", file=sys.stderr, flush=True)
 
 
 class Discovery:
@@ -250,7 +317,7 @@ class Discovery:
     def __init__(self, directory: Path, full_scan_s: float = 1.0, log=None):
         self.directory = directory
         self.full_scan_s = full_scan_s
-        self.log = log or (lambda text: None)      # one line per refused announcement
+        self.log = log or _stderr                  # one line per refused or removed announcement
         self.refused: dict[str, str] = {}          # announcement file -> why it is not trusted
         self.endpoints: set[str] = set()
         self.infos: list[NodeInfo] = []
@@ -269,7 +336,7 @@ class Discovery:
         if mtime != self._mtime or now - self._last_full >= self.full_scan_s:
             self._mtime, self._last_full = mtime, now
             refused: dict[str, str] = {}
-            self.infos = scan(self.directory, refused=refused)
+            self.infos = scan(self.directory, refused=refused, log=self.log)
             for name in refused.keys() - self.refused.keys():
                 self.log(f"refused announcement {self.directory / name}: {refused[name]}")
             self.refused.update(refused)
