@@ -58,7 +58,8 @@ def test_an_announcement_others_may_write_is_not_trusted(graph):
     with Node("real") as real:
         forged = graph.dir / "forger-1.node.json"
         forged.write_text(json.dumps({"name": "forger", "pid": os.getpid(), "endpoint": "ipc:///tmp/x.sock",
-                                      "publishes": {"/grip/command": "GripCommand"}}))
+                                      "publishes": {"/grip/command": "GripCommand"},
+                                      "pidns": discovery.namespace("pid")}))
         forged.chmod(0o666)
         refused: dict = {}
         names = {n.name for n in discovery.scan(graph.dir, refused=refused)}

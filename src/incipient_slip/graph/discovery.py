@@ -35,7 +35,7 @@ __all__ = ["graph_dir", "GraphNameError", "GraphDirError", "check_graph_dir", "N
 
 GRAPH_DIR_ENV = "SLIP_GRAPH_DIR"
 GRAPH_ENV = "SLIP_GRAPH"
-TRANSPORT_ENV = "SLIP_TRANSPORT"     # "ipc" (default) or "tcp" (127.0.0.1, random port)
+TRANSPORT_ENV = "SLIP_TRANSPORT"     # "ipc" (default), "tcp" (CURVE) or "tcp-insecure" (security.py)
 SUFFIX = ".node.json"
 _PROBE_TIMEOUT_S = 0.2              # a loopback tcp probe that takes longer proves nothing
 _MAX_IPC_PATH = 100                  # sun_path is 108 bytes including the NUL; keep a margin

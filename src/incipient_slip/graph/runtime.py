@@ -43,7 +43,7 @@ from typing import Any, Callable
 import zmq
 
 from incipient_slip import messages as M
-from incipient_slip.graph import discovery
+from incipient_slip.graph import discovery, security
 from incipient_slip.errors import EXIT_FAILURE, EXIT_USAGE
 from incipient_slip.graph.params import ParamError, as_param, declared_params, merge_params, parse_node_argv
 
@@ -264,7 +264,14 @@ class Node:
         self._xpub.setsockopt(zmq.XPUB_VERBOSER, 1)
         self._xpub.setsockopt(zmq.SNDHWM, HWM)
         self._xpub.setsockopt(zmq.LINGER, LINGER_MS)
-        if os.environ.get(discovery.TRANSPORT_ENV, "ipc") == "tcp":
+        transport = security.transport()
+        # tcp: every socket CURVE-authenticated and encrypted with the graph's keys (security.py)
+        self._keys = security.graph_keys(self._dir) if transport == "tcp" else None
+        if self._keys:
+            security.secure_server(self._xpub, self._keys, str(self._dir))
+        elif transport == "tcp-insecure":
+            self.warn(security.INSECURE_WARNING)
+        if transport != "ipc":
             port = self._xpub.bind_to_random_port("tcp://127.0.0.1")
             endpoint = f"tcp://127.0.0.1:{port}"
         else:
@@ -273,6 +280,8 @@ class Node:
         self._sub = self._ctx.socket(zmq.SUB)
         self._sub.setsockopt(zmq.RCVHWM, HWM)
         self._sub.setsockopt(zmq.LINGER, 0)
+        if self._keys:
+            security.secure_client(self._sub, self._keys)
         self._sub_recv = self._sub.recv_multipart
         self._rcvtimeo = -1
         self._info = discovery.NodeInfo(self.name, os.getpid(), endpoint, started_ns=time.time_ns(),
@@ -562,6 +571,12 @@ class Node:
                 except zmq.ZMQError:
                     pass
                 self._connected.discard(endpoint)
+
+    @property
+    def refused_clients(self) -> int:
+        """Connections to this node's graph refused by CURVE authentication (a key that is not
+        the graph's), counted per process and graph."""
+        return security.refused_clients(self._ctx, str(self._dir))
 
     def _accepts(self, info: discovery.NodeInfo) -> bool:
         """Whether to connect to an announced node, given the launch's writers of our inputs:
