@@ -45,6 +45,19 @@ def test_required_node_exit_ends_launch_with_its_code(graph):
     assert os.listdir(graph.dir) == []
 
 
+def test_a_node_that_needs_seconds_to_flush_at_shutdown_is_given_them_not_killed(graph):
+    """At run end a loaded machine made rig_sim take over 5 s to stop and the launcher SIGKILLed
+    it; a node gets the default grace (30 s) to flush."""
+    proc = launch(graph, f"""
+        launch:
+          - node: {{exec: {EXITER}, name: slow_flusher, param: [{{name: flush_s, value: 7.0}}]}}
+          - node: {{exec: {EXITER}, name: supervisor, required: true, param: [{{name: after_s, value: 0.3}}]}}
+    """)
+    rc, _, err = finish(proc, timeout=60)
+    assert rc == 0 and "SIGKILL" not in err, err
+    assert os.listdir(graph.dir) == []
+
+
 def test_a_required_node_that_refuses_its_input_ends_the_launch_with_2_and_its_line_last(graph):
     """A bad model file: the estimator exits 2; the launch must not run on, nor bury the cause."""
     proc = launch(graph, f"""
