@@ -72,7 +72,10 @@ def _topics() -> list[str]:
     out = []
     for topic, cls in DEFAULT_TOPICS.items():
         desc = cls.schema()
-        out += [f"### `{topic}` — {desc['type']} (v{desc['version']})", "", desc["description"] + ".", "",
+        latched = (" **Latched**: sent at start and on change, and a publisher re-sends its last "
+                   "one (same bytes) when a subscriber joins; a reader drops a body equal to the last "
+                   "one it got on the topic." if cls.LATCHED else "")
+        out += [f"### `{topic}` — {desc['type']} (v{desc['version']})", "", desc["description"] + "." + latched, "",
                 "| field | msgpack | width / dtype | range (inclusive) | unit | rules |",
                 "|---|---|---|---|---|---|"]
         out += [_field_row(name, spec) for name, spec in desc["fields"].items()]

@@ -86,6 +86,8 @@ class Publisher:
         self.frame = M.topic_frame(topic)
         self.seq = 0
         self._send = node._xpub.send_multipart
+        self.latched = msg_type.LATCHED
+        self.last: list[bytes] | None = None    # latched: the frames re-sent to a late subscriber
 
     def publish(self, msg: M.Message, keep_seq: bool = False) -> int:
         """Send `msg`; returns the seq it went out with (original seq when keep_seq)."""
@@ -97,7 +99,10 @@ class Publisher:
         else:
             seq = self.seq
             self.seq = seq + 1
-        self._send([self.frame, M.encode(msg, stamp_ns=msg.stamp_ns or time.time_ns(), seq=seq)])
+        frames = [self.frame, M.encode(msg, stamp_ns=msg.stamp_ns or time.time_ns(), seq=seq)]
+        if self.latched:
+            self.last = frames
+        self._send(frames)
         return seq
 
     def subscriber_count(self) -> int:
@@ -246,6 +251,12 @@ class Node:
         self._subs: dict[str, list[Subscription]] = {}
         self._raw_subs: list[RawSubscription] = []
         self._pubs: dict[str, Publisher] = {}
+        self._latched: list[Publisher] = []
+        self._last_body: dict[str, bytes] = {}   # topic -> last body: a latched re-send is dropped
+        # topics whose re-sends are dropped: latched types' own topics (raw readers) and wherever
+        # a typed subscription of a latched type reads (remaps)
+        self._latched_topics = {t for t, cls in M.DEFAULT_TOPICS.items() if cls.LATCHED}
+        self.duplicates = 0
         self._sub_counts: dict[bytes, int] = {}
         self._warned: dict[Any, list] = {}
         self._shutdown_hooks: list[Callable[[], Any]] = []
@@ -334,6 +345,8 @@ class Node:
                 raise TypeError(f"{topic} is already published as {pub.type.__name__}")
             return pub
         pub = self._pubs[topic] = Publisher(self, msg_type, topic)
+        if pub.latched:
+            self._latched.append(pub)
         self._info.publishes[topic] = msg_type.__name__
         self._announce()
         return pub
@@ -357,6 +370,8 @@ class Node:
         topic = self.resolve_topic(topic or msg_type.TOPIC)
         sub = Subscription(self, msg_type, topic, callback, on_gap)
         self._subs.setdefault(topic, []).append(sub)
+        if msg_type.LATCHED:
+            self._latched_topics.add(topic)
         self._sub.setsockopt(zmq.SUBSCRIBE, M.topic_frame(topic))
         self._info.subscribes[topic] = msg_type.__name__
         self._after_subscribe()
@@ -616,6 +631,13 @@ class Node:
             except M.MessageError as exc:
                 self.warn(throttle_s=_LOG_EVERY_S, key="frames", text=f"dropped malformed frames: {exc}")
             return
+        # A body equal to the last one on its topic is a latched state re-sent for a subscriber
+        # that joined after us (seq and stamp included, so never a new message of one publisher)
+        if topic in self._latched_topics:
+            if self._last_body.get(topic) == body:
+                self.duplicates += 1
+                return
+            self._last_body[topic] = body
         for sub in self._subs.get(topic, ()):
             sub._deliver(body, recv_ns)
         for raw in self._raw_subs:
@@ -634,6 +656,9 @@ class Node:
             prefix = msg[1:]
             if msg[0] == 1:
                 counts[prefix] = counts.get(prefix, 0) + 1
+                for pub in self._latched:
+                    if pub.last is not None and pub.frame.startswith(prefix):
+                        pub._send(pub.last)
             elif msg[0] == 0:
                 counts[prefix] = max(0, counts.get(prefix, 0) - 1)
 
