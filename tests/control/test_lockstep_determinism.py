@@ -12,8 +12,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -60,16 +62,20 @@ def run(tmp: Path, name: str, steps: int, env: dict) -> tuple[dict, dict]:
 @pytest.mark.timeout(900)
 def test_the_same_seed_gives_the_same_messages_and_verdict_quiet_and_under_a_cpu_hog(tmp_path):
     env = {k: v for k, v in os.environ.items() if k != "SLIP_GRAPH_DIR"}
-    env["XDG_RUNTIME_DIR"] = str(tmp_path)          # graphs of their own, out of everyone's way
+    # graphs of their own, out of everyone's way, under a path short enough for ipc sockets
+    runtime = tempfile.mkdtemp(prefix="ls", dir="/tmp")
+    env["XDG_RUNTIME_DIR"] = runtime
     steps = 12
-    quiet = run(tmp_path, "quiet", steps, env)
-    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(1)]
+    hogs = []
     try:
+        quiet = run(tmp_path, "quiet", steps, env)
+        hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(1)]
         loaded = run(tmp_path, "loaded", steps, env)
     finally:
         for hog in hogs:
             hog.kill()
             hog.wait()
+        shutil.rmtree(runtime, ignore_errors=True)
     assert json.loads(quiet[0])["steps"] == steps and len(quiet[1]["/grip/command"]) == steps
     assert quiet[0] == loaded[0]                      # verdict, counts, every per-period trace
     assert sorted(quiet[1]) == sorted(loaded[1])
