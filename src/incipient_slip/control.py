@@ -319,9 +319,9 @@ class RunJudge:
     give identical traces whatever order the messages arrived in.
 
     `lockstep` (the simulated rig waits for each command): no wall-clock wait at all. The rig's
-    tick k (`rig_tick`) comes after all of period k's data on the same connection, so a period
-    is judged once its command, its tick or its data, and its estimate (when it acted on one)
-    are in: the verdict is a function of the messages, never of the CPU load.
+    tick k (`rig_tick`) comes after all of period k's data (its truth included) on the same
+    connection, so a period is judged once its command, its tick and its estimate (when it acted
+    on one) are in: verdict and traces are a function of the messages, never of the CPU load.
     """
 
     def __init__(self, rules: SupervisorRules, max_missing_periods: int = 3,
@@ -388,7 +388,10 @@ class RunJudge:
         while self.pending and not self.verdict.ended:
             k, hold_, command_kpa, deadline = self.pending[0]
             wants_estimate = self.estimates_drive and not hold_
-            rig_done = (k in self.force and self._pose_done(k)) or (self.lockstep and k <= self.rig_ticked)
+            # lock-step: the tick is the rig's last message of period k (its truth, F_N and
+            # poses came before it on the same connection), so the trace never depends on
+            # which of them happened to be read first
+            rig_done = k <= self.rig_ticked if self.lockstep else (k in self.force and self._pose_done(k))
             # an estimate lost with its publisher (killed) waits only data_wait_s; the rig's
             # data wait as long as the rig is still sending (a backlog draining)
             late = not self.lockstep and now_s >= (

@@ -348,7 +348,8 @@ def test_in_lockstep_a_period_is_judged_on_its_messages_never_on_the_wall_clock(
     judge.command(0, False, 2.9, now_s=0.0)
     assert not judge.close(now_s=1e6).ended and judge.steps == 0      # its estimate and pose: not yet
     judge.estimate(0, 0.4, True)
-    assert judge.close(now_s=1e6) is judge.verdict and judge.steps == 0   # pose still missing
-    judge.rig_tick(0)          # the rig's tick ends period 0: its data are all out
+    judge.pose(PERIOD_NS - 1, 0.1, now_s=0.0)
+    assert judge.close(now_s=1e6) is judge.verdict and judge.steps == 0   # data in, tick not yet
+    judge.rig_tick(0)          # the rig's tick ends period 0: its data (and truth) are all in
     judge.close(now_s=0.0)
     assert judge.steps == 1 and judge.traces["stick_ratio_estimate"] == [0.4]

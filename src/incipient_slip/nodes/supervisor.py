@@ -8,8 +8,8 @@ of periods: y > 1.5 mm or F_N at the 6.0 kPa limit fails, repeated holds are a f
 periods succeed; a command whose period is not the next one is dropped. No command within a
 wall-clock timeout is a fault ("graph silent"); before the first command that clock starts at the
 rig's first message (readiness), not at this node's start. `lockstep: true` (the simulated rig waits for
-each command): a period is judged once its command, its data or the rig's tick that ends it, and
-its estimate are in, never on `data_wait_s`; the wall-clock timeouts are liveness limits only. `period_origin: tick` (device clocks, host-time
+each command): a period is judged once its command, the rig's tick that ends it (after all its
+data) and its estimate are in, never on `data_wait_s`; the wall-clock timeouts are liveness limits only. `period_origin: tick` (device clocks, host-time
 stamps): pose and F_N stamps are taken on the period clock that the actuator's first tick sets
 (`control.PeriodOrigin`), as the estimator does. It publishes `RunEvent`s, writes the JSON run
 summary (also when interrupted) with the per-period traces (`/sim/truth`, the simulated rig's true
