@@ -38,6 +38,7 @@ GRAPH_ENV = "SLIP_GRAPH"
 TRANSPORT_ENV = "SLIP_TRANSPORT"     # "ipc" (default), "tcp" (CURVE) or "tcp-insecure" (security.py)
 SUFFIX = ".node.json"
 _PROBE_TIMEOUT_S = 0.2              # a loopback tcp probe that takes longer proves nothing
+_ORPHAN_SOCKET_S = 10.0             # an ipc socket with no announcement younger than this is kept
 _MAX_IPC_PATH = 100                  # sun_path is 108 bytes including the NUL; keep a margin
 _SAFE = re.compile(r"[^A-Za-z0-9_.-]")
 _PID_FILE = re.compile(r"^\.?(?:.*-)?(\d+)(?:\.node\.json(?:\.tmp)?|\.sock)$")   # what a node leaves
@@ -226,6 +227,13 @@ def _refuses(endpoint: str, netns: str = "") -> bool:
     return False
 
 
+def _older_than(entry: os.DirEntry, seconds: float) -> bool:
+    try:
+        return entry.stat(follow_symlinks=False).st_mtime < time.time() - seconds
+    except OSError:
+        return False
+
+
 def is_dead(info: NodeInfo) -> bool:
     """True only when the node of an announcement is proven gone: its pid is dead (or reused)
     in our own pid namespace, or, for a node in another or an unknown pid namespace (a
@@ -269,11 +277,12 @@ def scan(directory: Path, clean: bool = True, refused: dict[str, str] | None = N
     names = {e.name for e in entries}
     for entry in entries:
         if not entry.name.endswith(SUFFIX) or entry.name.startswith("."):
-            # a socket is bound before its announcement is written: one with no announcement
-            # is removed only when nothing listens on it
+            # a socket is bound before its announcement is written, and between bind() and
+            # listen() it refuses connections (a window a loaded machine widens): one with no
+            # announcement is removed only when it is older than that and nothing listens on it
             if clean and entry.name.endswith(".sock") and not any(
                     n.endswith(SUFFIX) and n[:-len(SUFFIX)] == entry.name[:-5] for n in names) \
-                    and _refuses("ipc://" + entry.path):
+                    and _older_than(entry, _ORPHAN_SOCKET_S) and _refuses("ipc://" + entry.path):
                 try:
                     os.unlink(entry.path)
                 except OSError:
