@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-slow bench bench-graph bench-bag bench-sim bench-estimator bench-loop clean
+.PHONY: demo test test-load test-slow bench bench-graph bench-curve bench-bag bench-sim bench-estimator bench-loop clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -32,6 +32,18 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -m "not slow" -n 2
 
+# make test-load: `make test`'s selection LOAD_RUNS times (default 3) beside two CPU hogs (busy
+# Python loops, one per core of the 2-core development machine), which it stops at the end; it
+# fails if any run fails. Tests wait for events, never for a fixed time, so load only slows them.
+LOAD_RUNS ?= 3
+test-load: $(STAMP)
+	@hogs=""; for i in 1 2; do $(BIN)/python -c 'while True: pass' & hogs="$$hogs $$!"; done; \
+	trap 'kill $$hogs' EXIT INT TERM; status=0; \
+	for run in $$(seq $(LOAD_RUNS)); do \
+	  echo "test-load: run $$run of $(LOAD_RUNS) beside two CPU hogs (pids$$hogs)"; \
+	  $(BIN)/python -m pytest -q -m "not slow" -n 2 || status=1; done; \
+	exit $$status
+
 test-slow: $(STAMP)
 	$(BIN)/python -m pytest -q -m slow
 
@@ -39,10 +51,13 @@ clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis
 
 # Benchmarks print ratios measured side by side in one run; results go to docs/performance.md.
-bench: bench-graph bench-bag bench-sim bench-estimator bench-loop
+bench: bench-graph bench-curve bench-bag bench-sim bench-estimator bench-loop
 
 bench-graph: $(STAMP)
 	$(BIN)/python bench/bench_graph.py
+
+bench-curve: $(STAMP)
+	$(BIN)/python bench/bench_curve.py
 
 bench-bag: $(STAMP)
 	$(BIN)/python bench/bench_bag.py --dir .

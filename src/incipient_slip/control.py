@@ -169,11 +169,17 @@ class PeriodAnswerer:
     publisher); one for a period the rig has not started (beyond the next one, or skipped) or
     already answered is rejected and counted. Ticks advance by one (up to MAX_TICK_SKIP lost ones); a tick that
     jumps further or goes back is refused and counted, so a forged period cannot end the run.
+
+    `lockstep`: the rig waits for each answer, so a period waits for its estimate however long
+    it takes: `clock()` answers nothing and the answers are a function of the messages only
+    (never of the CPU load); `overdue(now_s)` names the periods waiting longer than the timeout,
+    for a liveness warning.
     """
 
     def __init__(self, params: ControlParams, initial_force_kpa: float, method: str,
-                 estimate_timeout_s: float):
+                 estimate_timeout_s: float, lockstep: bool = False):
         self.params, self.method, self.timeout_s = params, method, estimate_timeout_s
+        self.lockstep = lockstep
         self.force_kpa = clamp_force(initial_force_kpa, params)
         self.last_tick: int | None = None
         self.last_answered = -1
@@ -212,9 +218,13 @@ class PeriodAnswerer:
         return answers, f"period {period}: {problem}" if problem else ""
 
     def clock(self, now_s: float) -> list[Answer]:
-        """Return the holds of the periods whose estimate is overdue at `now_s`."""
-        late = [k for k, deadline in self.waiting.items() if now_s >= deadline]
+        """Return the holds of the periods whose estimate is overdue at `now_s` (none in lock-step)."""
+        late = [] if self.lockstep else self.overdue(now_s)
         return self._answer(max(late), hold(self.force_kpa, "stale estimate", self.params)) if late else []
+
+    def overdue(self, now_s: float) -> list[int]:
+        """The periods still waiting for their estimate `estimate_timeout_s` after their tick."""
+        return [k for k, deadline in self.waiting.items() if now_s >= deadline]
 
     def _reject(self, why: str) -> tuple[list[Answer], str]:
         self.rejected += 1
@@ -312,13 +322,21 @@ class RunJudge:
     data (other publishers, fair-queued: a backlog of poses drains slower than commands), so
     any number of periods can wait at once, each for its own data. Traces are recorded by period: two identical runs
     give identical traces whatever order the messages arrived in.
+
+    `lockstep` (the simulated rig waits for each command): no wall-clock wait at all. The rig's
+    tick k (`rig_tick`) comes after all of period k's data (its truth included) on the same
+    connection, so a period is judged once its command, its tick and its estimate (when it acted
+    on one) are in: verdict and traces are a function of the messages, never of the CPU load.
     """
 
     def __init__(self, rules: SupervisorRules, max_missing_periods: int = 3,
-                 estimates_drive: bool = True, data_wait_s: float = 3.0, period_ns: int = PERIOD_NS):
+                 estimates_drive: bool = True, data_wait_s: float = 3.0, period_ns: int = PERIOD_NS,
+                 lockstep: bool = False):
         self.rules, self.max_missing, self.period_ns = rules, max_missing_periods, period_ns
         self.estimates_drive = estimates_drive     # False for "no action": no estimate to wait for
         self.data_wait_s = data_wait_s
+        self.lockstep = lockstep
+        self.rig_ticked = -1                       # the rig's last tick (lock-step: period k's data are all out)
         self.next_period: int | None = None
         self.pending: deque = deque()              # (period, hold, command_kpa, deadline_s)
         self.rig_heard_s = float("-inf")          # when the rig's last pose or F_N arrived
@@ -344,6 +362,10 @@ class RunJudge:
         k = stamp_ns // self.period_ns
         if self._wanted(self.force, k):
             self.force[k] = force_kpa
+
+    def rig_tick(self, period: int) -> None:
+        """The rig's tick for `period` (its ActuatorState): the last message of that period."""
+        self.rig_ticked = max(self.rig_ticked, period)
 
     def estimate(self, period: int, stick_ratio: float, valid: bool) -> None:
         if self._wanted(self.estimates, period):
@@ -371,10 +393,14 @@ class RunJudge:
         while self.pending and not self.verdict.ended:
             k, hold_, command_kpa, deadline = self.pending[0]
             wants_estimate = self.estimates_drive and not hold_
-            rig_done = k in self.force and self._pose_done(k)
+            # lock-step: the tick is the rig's last message of period k (its truth, F_N and
+            # poses came before it on the same connection), so the trace never depends on
+            # which of them happened to be read first
+            rig_done = k <= self.rig_ticked if self.lockstep else (k in self.force and self._pose_done(k))
             # an estimate lost with its publisher (killed) waits only data_wait_s; the rig's
             # data wait as long as the rig is still sending (a backlog draining)
-            late = now_s >= (deadline if rig_done else max(deadline, self.rig_heard_s + self.data_wait_s))
+            late = not self.lockstep and now_s >= (
+                deadline if rig_done else max(deadline, self.rig_heard_s + self.data_wait_s))
             if not ((rig_done and (not wants_estimate or k in self.estimates)) or late):
                 break
             self.pending.popleft()

@@ -347,3 +347,27 @@ def test_an_estimate_lost_with_its_publisher_is_waited_for_only_data_wait_s():
         assert judge.close(t).kind == "" and judge.steps == 0
     judge.close(3.0)
     assert judge.steps == 1 and math.isnan(judge.traces["stick_ratio_estimate"][0])
+
+
+# --- lock-step: no wall-clock decision ---------------------------------------------------------
+
+def test_in_lockstep_a_late_estimate_is_waited_for_not_held():
+    params = ControlParams(0.3, 2.0, 0.5, 0.0, SAFETY_LIMIT_KPA)
+    core = PeriodAnswerer(params, 2.9, "injection", estimate_timeout_s=0.4, lockstep=True)
+    assert core.tick(0, now_s=0.0) == ([], "")
+    assert core.clock(now_s=1e6) == [] and core.overdue(1e6) == [0]     # a liveness warning only
+    answers, _ = core.estimate(0, 0.5, True, "injection")
+    assert [(a.period, a.hold) for a in answers] == [(0, False)] and core.holds == 0
+
+
+def test_in_lockstep_a_period_is_judged_on_its_messages_never_on_the_wall_clock():
+    judge = RunJudge(SupervisorRules(max_steps=5), data_wait_s=3.0, lockstep=True)
+    judge.robot(0, 2.9, now_s=0.0)
+    judge.command(0, False, 2.9, now_s=0.0)
+    assert not judge.close(now_s=1e6).ended and judge.steps == 0      # its estimate and pose: not yet
+    judge.estimate(0, 0.4, True)
+    judge.pose(PERIOD_NS - 1, 0.1, now_s=0.0)
+    assert judge.close(now_s=1e6) is judge.verdict and judge.steps == 0   # data in, tick not yet
+    judge.rig_tick(0)          # the rig's tick ends period 0: its data (and truth) are all in
+    judge.close(now_s=0.0)
+    assert judge.steps == 1 and judge.traces["stick_ratio_estimate"] == [0.4]

@@ -19,7 +19,8 @@ def test_stabilize_defaults_are_one_simulated_lockstep_injection_run():
     got = nodes(desc)
     assert set(got) == {"rig_sim", "estimator", "grip_controller", "supervisor"}
     assert got["rig_sim"].params["scene"] == "paper" and got["rig_sim"].params["lockstep"] is True
-    assert got["grip_controller"].params == {"method": "injection", "s_d": 0.3, "k": 2.0}
+    assert got["grip_controller"].params == {"method": "injection", "s_d": 0.3, "k": 2.0, "lockstep": True,
+                                             "estimate_timeout_s": 0.4, "wait_timeout_s": 300.0}
     # no subscriber counts: each publisher waits for the readers the topology names
     readers = json.loads(got["rig_sim"].env[READERS_ENV])
     assert readers["/biotac/pac"] == ["estimator"]

@@ -45,6 +45,19 @@ def test_required_node_exit_ends_launch_with_its_code(graph):
     assert os.listdir(graph.dir) == []
 
 
+def test_a_node_that_needs_seconds_to_flush_at_shutdown_is_given_them_not_killed(graph):
+    """At run end a loaded machine made rig_sim take over 5 s to stop and the launcher SIGKILLed
+    it; a node gets the default grace (30 s) to flush."""
+    proc = launch(graph, f"""
+        launch:
+          - node: {{exec: {EXITER}, name: slow_flusher, param: [{{name: flush_s, value: 7.0}}]}}
+          - node: {{exec: {EXITER}, name: supervisor, required: true, param: [{{name: after_s, value: 0.3}}]}}
+    """)
+    rc, _, err = finish(proc, timeout=60)
+    assert rc == 0 and "SIGKILL" not in err, err
+    assert os.listdir(graph.dir) == []
+
+
 def test_a_required_node_that_refuses_its_input_ends_the_launch_with_2_and_its_line_last(graph):
     """A bad model file: the estimator exits 2; the launch must not run on, nor bury the cause."""
     proc = launch(graph, f"""
@@ -156,11 +169,12 @@ def test_a_publisher_waits_for_its_named_reader_not_for_a_recorder_started_befor
           - node: {{exec: {LISTENER}, required: true,
                     param: [{{name: start_delay_s, value: 1.0}}, {{name: count, value: 20}}]}}
     """)
-    probe.until(lambda: proc.poll() is not None, 30, what="the launch to end")
+    # (the stranger connects to the talker at its next directory check; on a loaded machine that
+    # can come after this short run ended, so whether it heard anything is not asserted)
+    probe.until(lambda: proc.poll() is not None, 120, what="the launch to end")
     rc, out, err = finish(proc)
     assert rc == 0, err
     assert "[listener] first seq 0" in out and "[listener] done 20 gaps 0" in out
-    assert "/biotac/pac" in recorder       # the stranger was there all along
 
 
 def test_a_gate_that_fails_ends_the_launch_before_the_nodes_after_it_start(graph):

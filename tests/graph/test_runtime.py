@@ -236,3 +236,23 @@ def test_a_script_that_never_closes_its_node_leaves_no_files(graph):
     proc = graph.spawn(["python", "-c", script])
     assert proc.wait(timeout=30) == 5
     assert os.listdir(graph.dir) == []
+
+
+def test_a_latched_state_reaches_a_late_subscriber_and_no_one_gets_it_twice(graph, probe):
+    """/pzt/state goes out at start and on change: a recorder or echo that joins mid-run gets the
+    last one (transient-local, depth 1); the subscribers it reached already drop the re-send."""
+    with Node("rig") as rig, Node("early") as early, Node("late") as late:
+        first, later, raw = [], [], []
+        pub = rig.create_publisher(M.PztState)
+        early.create_subscription(M.PztState, first.append)
+        assert pub.wait_for_subscribers(1, 20)
+        pub.publish(M.PztState(enabled=True, intensity_db=-6.0))
+        probe.until(lambda: first, 20, nodes=[rig, early])
+        late.create_subscription(M.PztState, later.append)        # joins after the only message
+        late.create_raw_subscription(lambda topic, body, ns: raw.append(topic))    # a recorder
+        probe.until(lambda: later and raw, 20, nodes=[rig, early, late], what="the latched state")
+        pub.publish(M.PztState(enabled=False))
+        probe.until(lambda: len(first) == 2 and len(later) == 2, 20, nodes=[rig, early, late])
+        assert [m.enabled for m in first] == [True, False] and [m.enabled for m in later] == [True, False]
+        assert later[0].intensity_db == -6.0 and raw.count("/pzt/state") == 2
+        assert early.duplicates >= 1

@@ -20,7 +20,7 @@ def test_a_bad_graph_name_is_one_line_and_exit_2(monkeypatch, capsys, tool, how)
     assert err.count("\n") == 1 and f"slip topic {tool[0]}: error: graph name 'a+b'" in err
 
 
-@pytest.mark.timeout(30)
+@pytest.mark.timeout(120)
 def test_echo_with_nothing_running_says_it_is_waiting_instead_of_hanging_silently(tmp_path):
     import os
     import subprocess
@@ -28,10 +28,10 @@ def test_echo_with_nothing_running_says_it_is_waiting_instead_of_hanging_silentl
     env = dict(os.environ, SLIP_GRAPH_DIR=str(tmp_path / "empty-graph"))
     proc = subprocess.Popen([sys.executable, "-m", "incipient_slip.cli", "topic", "echo", "/slip/estimate"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    # its first line, however long a loaded machine takes to start it (the test's timeout
-    # bounds the wait; a fixed 6 s failed under load before the line could come)
-    first = proc.stderr.readline()
-    proc.terminate()
-    out, err = proc.communicate(timeout=10)
+    try:        # the event: its first stderr line (a loaded machine may take long to start it)
+        err = proc.stderr.readline()
+    finally:
+        proc.terminate()
+        out, _ = proc.communicate(timeout=60)
     assert out == ""
-    assert "no message on /slip/estimate yet in graph" in first and "empty-graph" in first
+    assert "no message on /slip/estimate yet in graph" in err and "empty-graph" in err

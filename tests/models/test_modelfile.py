@@ -65,8 +65,22 @@ def test_load_model_names_a_missing_file(tmp_path):
 
 def test_load_model_refuses_a_file_that_is_not_a_model(tmp_path):
     (tmp_path / "x.npz").write_bytes(b"not a zip")
-    with pytest.raises(ModelFileError, match="not a readable model file"):
+    with pytest.raises(ModelFileError, match="not a model file"):
         load_model(tmp_path / "x.npz")
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_random_bytes_or_an_object_array_never_suggest_unpickling(tmp_path, seed):
+    """numpy's own error for these advises `allow_pickle`: loading a model must never say so."""
+    rng = np.random.default_rng(seed)
+    path = tmp_path / "m.npz"
+    if seed == 0:        # a real zip whose member is an object array (numpy: "pickled data")
+        np.savez(path, header=np.array([{"a": 1}], dtype=object))
+    else:
+        path.write_bytes(rng.integers(0, 256, size=int(rng.integers(1, 5000)), dtype=np.uint8).tobytes())
+    with pytest.raises(ModelFileError, match="not a (readable )?model file") as info:
+        load_model(path)
+    assert "pickle" not in str(info.value).lower()
 
 
 def test_predictions_are_clipped_to_unit_interval():

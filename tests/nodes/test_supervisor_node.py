@@ -84,3 +84,23 @@ def test_a_run_that_judged_no_period_keeps_the_earlier_summary(graph, tmp_path):
     assert proc.wait(10) == 0
     assert json.loads(summary.read_text()) == {"outcome": "success", "steps": 450}
     assert "no period was judged" in proc.stderr.read().decode()
+
+
+def test_start_up_waits_for_the_rig_and_then_a_silent_graph_is_a_fault(graph, tmp_path):
+    """A rig that takes longer to start than startup_timeout_s is not "graph silent": the clock
+    starts at the rig's first message (before: at the supervisor's start, so a loaded machine
+    that took 60 s to start rig_sim ended the run before step 0)."""
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.supervisor", "startup_timeout_s:=1.0",
+                        "summary_path:=", "quiet:=true"])
+    node = FakeLoop(graph.dir)
+    beats: list[Heartbeat] = []
+    node.create_subscription(Heartbeat, beats.append)
+    # three of its heartbeats (1 s apart) are more than its 1 s start-up timeout: still running
+    node.spin_until(lambda: sum(b.node == "supervisor" for b in beats) >= 3 and
+                    max(b.uptime_s for b in beats if b.node == "supervisor") > 2.0, proc, timeout_s=60)
+    assert proc.poll() is None
+    while not node.pubs[RobotState].wait_for_subscribers(1, 0.1):
+        assert proc.poll() is None
+    node.pubs[RobotState].publish(RobotState(normal_force_kpa=2.9, stamp_ns=1))   # the rig is up
+    assert proc.wait(60) == 3          # then no command within 1 s: a fault
+    assert "graph silent" in proc.stderr.read().decode()

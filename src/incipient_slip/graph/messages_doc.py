@@ -23,7 +23,7 @@ __all__ = ["render", "main", "ANNOUNCEMENT_KEYS"]
 
 REGENERATE = ".venv/bin/python -m incipient_slip.graph.messages_doc docs/messages.md"
 # The keys of an announcement file, as discovery.announce writes them (a test checks this).
-ANNOUNCEMENT_KEYS = ("name", "pid", "endpoint", "publishes", "subscribes", "started_ns")
+ANNOUNCEMENT_KEYS = ("name", "pid", "endpoint", "publishes", "subscribes", "started_ns", "pidns", "netns")
 
 _MSGPACK = {"bool": "bool", "str": "str", "float64": "float 64 (float 32 or int accepted)",
             **{w: "int" for w in INT_RANGES}}
@@ -72,7 +72,10 @@ def _topics() -> list[str]:
     out = []
     for topic, cls in DEFAULT_TOPICS.items():
         desc = cls.schema()
-        out += [f"### `{topic}` — {desc['type']} (v{desc['version']})", "", desc["description"] + ".", "",
+        latched = (" **Latched**: sent at start and on change, and a publisher re-sends its last "
+                   "one (same bytes) when a subscriber joins; a reader drops a body equal to the last "
+                   "one it got on the topic." if cls.LATCHED else "")
+        out += [f"### `{topic}` — {desc['type']} (v{desc['version']})", "", desc["description"] + "." + latched, "",
                 "| field | msgpack | width / dtype | range (inclusive) | unit | rules |",
                 "|---|---|---|---|---|---|"]
         out += [_field_row(name, spec) for name, spec in desc["fields"].items()]
@@ -209,7 +212,9 @@ In order:
      the first usable of `$TMPDIR`, `$TEMP`, `$TMP`, then `/tmp`, `/var/tmp`, `/usr/tmp`, the
      current directory.
 
-The directory is created with mode 0700. Two shells with the same environment find the same
+The directory is created with mode 0700; a directory (or base directory) not owned by the
+current user, or writable by group or others, is refused, and so are announcement files not
+owned by the current user or writable by others. Two shells with the same environment find the same
 graph; set `${discovery.GRAPH_ENV}` to run two graphs side by side.
 
 ### Announcement files
@@ -223,11 +228,18 @@ with the keys {keys}:
 {{"name": "estimator", "pid": 4242, "endpoint": "ipc:///run/user/1000/incipient-slip/default/estimator-4242.sock",
  "publishes": {{"/slip/estimate": "SlipEstimate", "/heartbeat": "Heartbeat"}},
  "subscribes": {{"/biotac/pac": "BiotacPac", "/biotac/slow": "BiotacSlow", "/pzt/state": "PztState"}},
- "started_ns": 1700000000000000000}}
+ "started_ns": 1700000000000000000, "pidns": "pid:[4026531836]", "netns": "net:[4026531840]"}}
 ```
 
-`publishes` and `subscribes` map topics (after remaps) to type names. A reader skips a file it
-cannot parse and removes the file (and the ipc socket) of a pid that is no longer alive.
+`publishes` and `subscribes` map topics (after remaps) to type names. `started_ns` is
+**wall-clock** time when the node started, ns since the Unix epoch (Python `time.time_ns()`,
+C `clock_gettime(CLOCK_REALTIME)`), never a monotonic clock; a value before the machine booted
+is ignored. `pidns` and `netns` are the writer's PID and network namespaces as
+`readlink /proc/self/ns/pid` (`.../net`) prints them; "" or absent means unknown. A reader skips
+a file it cannot parse. It removes a file (and its ipc socket) only when the node is proven
+dead, with one log line: in the reader's own PID namespace, its pid is gone or belongs to a
+process started more than 10 s after `started_ns`; in another or an unknown namespace, its
+endpoint refuses a connection (no listener on the ipc socket, or the socket file is gone).
 
 ### Endpoints
 
@@ -235,7 +247,12 @@ cannot parse and removes the file (and the ipc socket) of a pid that is no longe
 when the path would exceed {discovery._MAX_IPC_PATH} bytes (a Unix socket path holds 108; a node refuses
 to start when even the short path is too long: set `${discovery.GRAPH_DIR_ENV}` to a shorter
 directory). With `${discovery.TRANSPORT_ENV}=tcp` a node binds `tcp://127.0.0.1:<random port>`
-instead.
+instead, and every socket uses ZeroMQ's CURVE mechanism with the graph's key pair: the XPUB is a
+CURVE server (the graph's secret key; ZAP admits only clients with the graph's public key), the
+SUB a CURVE client holding the graph's key pair with the graph's public key as server key. The
+keys are Z85 text in ZeroMQ's certificate format (`public-key = "..."`, `secret-key = "..."`) in
+`<graph dir>/curve.key` (mode 0600) or the file `$SLIP_CURVE_KEYS` names. Plain TCP is
+`${discovery.TRANSPORT_ENV}=tcp-insecure`.
 """
 
 

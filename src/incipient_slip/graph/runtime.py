@@ -43,12 +43,12 @@ from typing import Any, Callable
 import zmq
 
 from incipient_slip import messages as M
-from incipient_slip.graph import discovery
+from incipient_slip.graph import discovery, security
 from incipient_slip.errors import EXIT_FAILURE, EXIT_USAGE
 from incipient_slip.graph.params import ParamError, as_param, declared_params, merge_params, parse_node_argv
 
 __all__ = ["Node", "Publisher", "RawPublisher", "Subscription", "RawSubscription", "Timer",
-           "run_node", "POLL_S", "LINGER_MS", "ANY_TOPIC", "READERS_ENV", "HELLO"]
+           "run_node", "POLL_S", "LINGER_MS", "ANY_TOPIC", "READERS_ENV", "WRITERS_ENV", "HELLO"]
 
 POLL_S = 0.1              # longest a loop blocks before it looks at the stop flag
 LINGER_MS = 500           # longest close() waits to flush queued messages
@@ -64,6 +64,11 @@ ANY_TOPIC = "*"
 # Set by the launcher for each node: JSON {output topic after remaps: [reader node names]}, the
 # readers in this launch that `wait_for_readers` waits for. Unset (a node started by hand): none.
 READERS_ENV = "SLIP_READERS"
+# Set by the launcher for each node: JSON {input topic after remaps: [writer node names]}. A node
+# accepts those topics only from those nodes: it does not connect to a node that announces one of
+# them without being its writer (a forged command or state; counted in `refused`, one warning
+# each). Unset (a node started by hand, a recorder): every publisher is accepted.
+WRITERS_ENV = "SLIP_WRITERS"
 # Each node, once its subscriptions are made, also subscribes HELLO + its name: a subscription no
 # one publishes on, whose XPUB message tells a publisher WHICH node is now subscribed (plain XPUB
 # subscription messages carry no identity). 0xFF sorts after every "/..." topic, which matters:
@@ -81,6 +86,8 @@ class Publisher:
         self.frame = M.topic_frame(topic)
         self.seq = 0
         self._send = node._xpub.send_multipart
+        self.latched = msg_type.LATCHED
+        self.last: list[bytes] | None = None    # latched: the frames re-sent to a late subscriber
 
     def publish(self, msg: M.Message, keep_seq: bool = False) -> int:
         """Send `msg`; returns the seq it went out with (original seq when keep_seq)."""
@@ -92,7 +99,10 @@ class Publisher:
         else:
             seq = self.seq
             self.seq = seq + 1
-        self._send([self.frame, M.encode(msg, stamp_ns=msg.stamp_ns or time.time_ns(), seq=seq)])
+        frames = [self.frame, M.encode(msg, stamp_ns=msg.stamp_ns or time.time_ns(), seq=seq)]
+        if self.latched:
+            self.last = frames
+        self._send(frames)
         return seq
 
     def subscriber_count(self) -> int:
@@ -208,7 +218,8 @@ class Node:
     `params` (overrides of PARAMS), `remaps` ({from topic: to topic}), `node_name` (overrides the
     name given by the subclass), `graph_dir` (default: discovery.graph_dir()), `raw_params` (the text
     each command-line param came from), `heartbeat_s` (0 disables the heartbeat), `readers`
-    ({output topic: reader node names} for `wait_for_readers`; default: $SLIP_READERS).
+    ({output topic: reader node names} for `wait_for_readers`; default: $SLIP_READERS),
+    `writers` ({input topic: the only node names it is accepted from}; default: $SLIP_WRITERS).
     """
 
     PARAMS: dict[str, Any] = {}
@@ -225,7 +236,8 @@ class Node:
     def __init__(self, name: str, *, params: dict | None = None, remaps: dict | None = None,
                  node_name: str | None = None, graph_dir=None, raw_params: dict | None = None,
                  heartbeat_s: float = HEARTBEAT_S, context: zmq.Context | None = None,
-                 readers: dict[str, list[str]] | None = None):
+                 readers: dict[str, list[str]] | None = None,
+                 writers: dict[str, list[str]] | None = None):
         self.name = node_name or name
         self.params = merge_params(self.name, declared_params(type(self)), params or {}, raw=raw_params)
         self.remaps = dict(remaps or {})
@@ -239,22 +251,38 @@ class Node:
         self._subs: dict[str, list[Subscription]] = {}
         self._raw_subs: list[RawSubscription] = []
         self._pubs: dict[str, Publisher] = {}
+        self._latched: list[Publisher] = []
+        self._last_body: dict[str, bytes] = {}   # topic -> last body: a latched re-send is dropped
+        # topics whose re-sends are dropped: latched types' own topics (raw readers) and wherever
+        # a typed subscription of a latched type reads (remaps)
+        self._latched_topics = {t for t, cls in M.DEFAULT_TOPICS.items() if cls.LATCHED}
+        self.duplicates = 0
         self._sub_counts: dict[bytes, int] = {}
         self._warned: dict[Any, list] = {}
         self._shutdown_hooks: list[Callable[[], Any]] = []
         self._said_hello = False
-        self._readers = _readers_from_env(self.name) if readers is None else dict(readers)
+        self._readers = _table_from_env(READERS_ENV, self.name) if readers is None else dict(readers)
+        self._writers = _table_from_env(WRITERS_ENV, self.name) if writers is None else dict(writers)
+        self.refused: dict[tuple[str, int], str] = {}     # (name, pid) of a refused publisher -> why
         self._log_prefix = "" if os.environ.get("SLIP_LAUNCHED") else f"[{self.name}] "
 
         self._dir = discovery.graph_dir() if graph_dir is None else Path(graph_dir)
-        self._dir.mkdir(parents=True, exist_ok=True)
+        self._dir.mkdir(parents=True, exist_ok=True, mode=0o700)
+        discovery.check_graph_dir(self._dir)
         self._ctx = context or zmq.Context.instance()
         self._xpub = self._ctx.socket(zmq.XPUB)
         self._xpub.setsockopt(zmq.XPUB_VERBOSE, 1)
         self._xpub.setsockopt(zmq.XPUB_VERBOSER, 1)
         self._xpub.setsockopt(zmq.SNDHWM, HWM)
         self._xpub.setsockopt(zmq.LINGER, LINGER_MS)
-        if os.environ.get(discovery.TRANSPORT_ENV, "ipc") == "tcp":
+        transport = security.transport()
+        # tcp: every socket CURVE-authenticated and encrypted with the graph's keys (security.py)
+        self._keys = security.graph_keys(self._dir) if transport == "tcp" else None
+        if self._keys:
+            security.secure_server(self._xpub, self._keys, str(self._dir))
+        elif transport == "tcp-insecure":
+            self.warn(security.INSECURE_WARNING)
+        if transport != "ipc":
             port = self._xpub.bind_to_random_port("tcp://127.0.0.1")
             endpoint = f"tcp://127.0.0.1:{port}"
         else:
@@ -263,12 +291,16 @@ class Node:
         self._sub = self._ctx.socket(zmq.SUB)
         self._sub.setsockopt(zmq.RCVHWM, HWM)
         self._sub.setsockopt(zmq.LINGER, 0)
+        if self._keys:
+            security.secure_client(self._sub, self._keys)
         self._sub_recv = self._sub.recv_multipart
         self._rcvtimeo = -1
-        self._info = discovery.NodeInfo(self.name, os.getpid(), endpoint, started_ns=time.time_ns())
-        self._discovery = discovery.Discovery(self._dir)
+        self._info = discovery.NodeInfo(self.name, os.getpid(), endpoint, started_ns=time.time_ns(),
+                                        pidns=discovery.namespace("pid"), netns=discovery.namespace("net"))
+        self._discovery = discovery.Discovery(self._dir, log=lambda text: self.warn(text))
         self._connected: set[str] = set()
         self._retiring: dict[str, float] = {}   # endpoint -> monotonic time to disconnect
+        self._refused_endpoints: set[str] = set()
         self._next_scan = 0.0
         _open_nodes.add(self)
         self._announce()
@@ -313,6 +345,8 @@ class Node:
                 raise TypeError(f"{topic} is already published as {pub.type.__name__}")
             return pub
         pub = self._pubs[topic] = Publisher(self, msg_type, topic)
+        if pub.latched:
+            self._latched.append(pub)
         self._info.publishes[topic] = msg_type.__name__
         self._announce()
         return pub
@@ -336,6 +370,8 @@ class Node:
         topic = self.resolve_topic(topic or msg_type.TOPIC)
         sub = Subscription(self, msg_type, topic, callback, on_gap)
         self._subs.setdefault(topic, []).append(sub)
+        if msg_type.LATCHED:
+            self._latched_topics.add(topic)
         self._sub.setsockopt(zmq.SUBSCRIBE, M.topic_frame(topic))
         self._info.subscribes[topic] = msg_type.__name__
         self._after_subscribe()
@@ -528,7 +564,7 @@ class Node:
 
     def _discover(self) -> None:
         self._next_scan = time.monotonic() + POLL_S
-        added, removed = self._discovery.changes()
+        added, removed = self._discovery.changes(self._accepts if self._writers else None)
         now = time.monotonic()
         for endpoint in added:
             self._retiring.pop(endpoint, None)
@@ -537,9 +573,11 @@ class Node:
                 self._connected.add(endpoint)
         # A publisher that withdrew may still have frames in our pipe: ZeroMQ discards them on
         # disconnect, so disconnect only after a grace period in which the loop reads them.
+        # A publisher refused as a forger is cut at once (no grace: its frames are not wanted).
         for endpoint in removed:
             if endpoint in self._connected:
-                self._retiring.setdefault(endpoint, now + DISCONNECT_GRACE_S)
+                forged = endpoint in self._refused_endpoints
+                self._retiring.setdefault(endpoint, now if forged else now + DISCONNECT_GRACE_S)
         for endpoint, due in list(self._retiring.items()):
             if due <= now:
                 del self._retiring[endpoint]
@@ -548,6 +586,33 @@ class Node:
                 except zmq.ZMQError:
                     pass
                 self._connected.discard(endpoint)
+
+    @property
+    def refused_clients(self) -> int:
+        """Connections to this node's graph refused by CURVE authentication (a key that is not
+        the graph's), counted per process and graph."""
+        return security.refused_clients(self._ctx, str(self._dir))
+
+    def _accepts(self, info: discovery.NodeInfo) -> bool:
+        """Whether to connect to an announced node, given the launch's writers of our inputs:
+        never to one that announces an input of ours without being its declared writer (counted
+        and logged once), else to the declared writers and to the publishers of the inputs that
+        have none (an operator's command) or of every topic for a node that reads them all."""
+        writers = self._writers
+        for topic in info.publishes:
+            if topic in writers and info.name not in writers[topic]:
+                key = (info.name, info.pid)
+                if key not in self.refused:
+                    self.refused[key] = (f"publisher {info.name} (pid {info.pid}) refused: it "
+                                         f"announces {topic}, whose writer in this launch is "
+                                         f"{' or '.join(writers[topic])}")
+                    self.warn(f"{self.refused[key]} ({len(self.refused)} refused)")
+                self._refused_endpoints.add(info.endpoint)
+                return False
+        if any(info.name in names for names in writers.values()):
+            return True
+        reads = self._info.subscribes
+        return ANY_TOPIC in reads or any(t in reads for t in info.publishes)
 
     def _handle(self, frames: list) -> None:
         recv_ns = time.time_ns()
@@ -566,6 +631,13 @@ class Node:
             except M.MessageError as exc:
                 self.warn(throttle_s=_LOG_EVERY_S, key="frames", text=f"dropped malformed frames: {exc}")
             return
+        # A body equal to the last one on its topic is a latched state re-sent for a subscriber
+        # that joined after us (seq and stamp included, so never a new message of one publisher)
+        if topic in self._latched_topics:
+            if self._last_body.get(topic) == body:
+                self.duplicates += 1
+                return
+            self._last_body[topic] = body
         for sub in self._subs.get(topic, ()):
             sub._deliver(body, recv_ns)
         for raw in self._raw_subs:
@@ -584,6 +656,9 @@ class Node:
             prefix = msg[1:]
             if msg[0] == 1:
                 counts[prefix] = counts.get(prefix, 0) + 1
+                for pub in self._latched:
+                    if pub.last is not None and pub.frame.startswith(prefix):
+                        pub._send(pub.last)
             elif msg[0] == 0:
                 counts[prefix] = max(0, counts.get(prefix, 0) - 1)
 
@@ -642,15 +717,15 @@ def _withdraw_open_nodes() -> None:
         discovery.withdraw(node._info)
 
 
-def _readers_from_env(node: str) -> dict[str, list[str]]:
-    text = os.environ.get(READERS_ENV)
+def _table_from_env(env: str, node: str) -> dict[str, list[str]]:
+    text = os.environ.get(env)
     if not text:
         return {}
     try:
         table = json.loads(text)
         return {str(t): [str(n) for n in names] for t, names in table.items()}
     except (ValueError, AttributeError, TypeError):
-        raise ParamError(f"node {node!r}: ${READERS_ENV} is not JSON {{topic: [node names]}}: "
+        raise ParamError(f"node {node!r}: ${env} is not JSON {{topic: [node names]}}: "
                          f"{text[:80]!r}") from None
 
 

@@ -286,6 +286,9 @@ class Message:
     TOPIC: ClassVar[str] = ""
     SCHEMA_VERSION: ClassVar[int] = 1
     DESCRIPTION: ClassVar[str] = ""
+    # A state sent once and then only on change: a publisher re-sends its last one to each
+    # subscriber that joins later (ROS 2's transient-local durability, depth 1; graph/runtime.py)
+    LATCHED: ClassVar[bool] = False
 
     stamp_ns: int = integer("uint64", unit="ns", kw_only=True,
                             note="source clock, ns since the Unix epoch (exceeds 2**53)")

@@ -120,6 +120,7 @@ class PztCommand(Message):
 class PztState(Message):
     TOPIC: ClassVar[str] = "/pzt/state"
     DESCRIPTION: ClassVar[str] = "PZT injector state: on/off, intensity, band"
+    LATCHED: ClassVar[bool] = True      # sent at start and on change: a late reader gets the last one
     enabled: bool = flag(False)
     intensity_db: float = real(0.0, unit="dB", low=-120.0, high=20.0)
     band_low_hz: float = real(10.0, unit="Hz", low=0.0)

@@ -134,17 +134,28 @@ def _json_default(obj):
     raise TypeError(f"{type(obj).__name__} is not JSON serializable")
 
 
+_ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")    # a zip's first local header, or an empty zip
+
+
 def read_model_file(path: str | Path) -> Model:
     """Return the Model stored in a file, without checking it against any stream."""
     path = Path(path)
     if not path.is_file():
         raise ModelFileError(f"model file {path} does not exist (train one with `slip train` "
                              "or regenerate the shipped ones with `slip reproduce models`)")
+    with open(path, "rb") as f:
+        magic = f.read(4)
+    if magic not in _ZIP_MAGIC:     # np.load would try it as .npy, then as a pickle
+        raise ModelFileError(f"{path}: not a model file (a model file is a .npz zip archive, as "
+                             f"`slip train` writes; this file starts with {magic!r})")
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
     except Exception as exc:  # zip/npz errors come in many types
-        raise ModelFileError(f"{path}: not a readable model file ({exc})") from None
+        # numpy's text may advise unpickling (allow_pickle): a model file never holds objects
+        why = ("it holds object arrays, which a model file never does" if "pickle" in str(exc)
+               else f"{type(exc).__name__}: {exc}")
+        raise ModelFileError(f"{path}: not a readable model file ({why})") from None
     if "header" not in arrays:
         raise ModelFileError(f"{path}: no 'header' array; not an incipient-slip model file")
     try:

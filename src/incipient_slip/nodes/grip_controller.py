@@ -4,7 +4,11 @@
 
 Answers each period the rig starts (`/actuator/state`) with exactly one `GripCommand`: on the
 period's estimate, at once for `method:=none`, or with a hold of the last safe force ("stale
-estimate") when no usable estimate came within `estimate_timeout_s`. The bookkeeping is
+estimate") when no usable estimate came within `estimate_timeout_s` (wall clock). In lock-step
+(`lockstep: true`, the simulated rig waits for each command) there is no such hold: a period
+waits for its estimate, so the run is a function of the seed and the parameters, not of the CPU
+load; `estimate_timeout_s` is then a liveness limit only (a warning; the rig's own
+`lockstep_timeout_s` ends a run whose estimator stopped). The bookkeeping is
 `control.PeriodAnswerer`; the law, clamps and rate limit are `control.next_force`. Whoever
 applies the command (rig_sim, the UR5 node) reads `/grip/command`.
 """
@@ -33,7 +37,8 @@ class GripController(Node):
         "initial_force_kpa": Param(control.DEFAULT_INITIAL_FORCE_KPA, **FORCE, help="F_N before the first estimate"),
         "min_force_kpa": Param(control.DEFAULT_MIN_FORCE_KPA, **FORCE, help="lowest commanded F_N"),
         "max_force_kpa": Param(control.SAFETY_LIMIT_KPA, **FORCE, help="highest commanded F_N"),
-        "estimate_timeout_s": Param(0.4, lo=1e-3, help="hold when no estimate this long after the tick (s)"),
+        "estimate_timeout_s": Param(0.4, lo=1e-3, help="real time: hold when no estimate this long after the tick; lock-step: warn only (s)"),
+        "lockstep": Param(False, help="true: the rig waits for each command; a period waits for its estimate"),
         "wait_subscribers": Param(1, lo=0, help="started by hand: readers of /grip/command to wait for"),
         "wait_timeout_s": Param(10.0, lo=0.0, help="longest wait for them (s)"),
     }
@@ -45,12 +50,24 @@ class GripController(Node):
             raise ParamError(f"node {self.name!r}: min_force_kpa:={p('min_force_kpa')} is above "
                              f"max_force_kpa:={p('max_force_kpa')}")
         law = control.ControlParams(p("s_d"), p("k"), p("max_step_kpa"), p("min_force_kpa"), p("max_force_kpa"))
-        self.core = control.PeriodAnswerer(law, p("initial_force_kpa"), p("method"), p("estimate_timeout_s"))
+        self.core = control.PeriodAnswerer(law, p("initial_force_kpa"), p("method"), p("estimate_timeout_s"),
+                                           lockstep=p("lockstep"))
         self.command_pub = self.create_publisher(GripCommand)
         self.create_subscription(SlipEstimate, self.on_estimate)
         self.create_subscription(ActuatorState, lambda msg: self.send(*self.core.tick(msg.step_index, time.monotonic())))
-        self.create_timer(0.01, lambda: self.send(self.core.clock(time.monotonic())))
+        self.create_timer(0.01, self.clock)
         self.readers_ready = p("wait_subscribers") == 0
+
+    def clock(self) -> None:
+        now = time.monotonic()
+        if self.core.lockstep:          # liveness only: the answer still waits for the estimate
+            late = self.core.overdue(now)
+            if late:
+                self.warn(f"lock-step: no estimate for period {min(late)} after "
+                          f"{self.param('estimate_timeout_s')} s; waiting (a liveness warning, the "
+                          f"answer does not change)", throttle_s=5.0)
+            return
+        self.send(self.core.clock(now))
 
     def on_estimate(self, msg: SlipEstimate) -> None:
         self.send(*self.core.estimate(msg.period, msg.stick_ratio, msg.valid, msg.method, msg.reason))

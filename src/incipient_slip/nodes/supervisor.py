@@ -6,7 +6,10 @@ Feeds `/object/pose` (travel y), `/robot/state` (applied F_N), `/slip/estimate` 
 `/grip/command` (which closes each period) to `control.RunJudge`, which judges by its own count
 of periods: y > 1.5 mm or F_N at the 6.0 kPa limit fails, repeated holds are a fault, `max_steps`
 periods succeed; a command whose period is not the next one is dropped. No command within a
-wall-clock timeout is a fault ("graph silent"). `period_origin: tick` (device clocks, host-time
+wall-clock timeout is a fault ("graph silent"); before the first command that clock starts at the
+rig's first message (readiness), not at this node's start. `lockstep: true` (the simulated rig waits for
+each command): a period is judged once its command, the rig's tick that ends it (after all its
+data) and its estimate are in, never on `data_wait_s`; the wall-clock timeouts are liveness limits only. `period_origin: tick` (device clocks, host-time
 stamps): pose and F_N stamps are taken on the period clock that the actuator's first tick sets
 (`control.PeriodOrigin`), as the estimator does. It publishes `RunEvent`s, writes the JSON run
 summary (also when interrupted) with the per-period traces (`/sim/truth`, the simulated rig's true
@@ -45,10 +48,11 @@ class Supervisor(Node):
         "end_on_failure": Param(True, help="false: run all steps and report (the paper's no action)"),
         "stop_on_travel": Param(False, help="true: end at the first y > max_travel_mm; false (the paper's "
                                             "protocol): run to the F_N limit or max_steps and judge the end state"),
-        "startup_timeout_s": Param(60.0, **POSITIVE, help="wall clock until the first grip command (s)"),
+        "startup_timeout_s": Param(60.0, **POSITIVE, help="wall clock from the rig's first message until the first grip command (s)"),
         "silence_timeout_s": Param(5.0, **POSITIVE, help="wall clock between two grip commands (s)"),
         "data_wait_s": Param(3.0, **POSITIVE, help="longest wait for a period's data after its command (s)"),
         "quiet": Param(False, help="true: no one-screen summary (batch runs)"),
+        "lockstep": Param(False, help="true: the rig waits for each command; periods are judged on messages only, never on data_wait_s"),
         "period_origin": Param("stamps", choices=control.PERIOD_ORIGINS,
                                help="stamps: period k is stamp // T; tick: from the actuator's first tick (device clocks)"),
         # recorded in the summary only
@@ -63,13 +67,16 @@ class Supervisor(Node):
                                         p("max_consecutive_holds"), p("end_on_failure"), p("stop_on_travel"))
         self.judge = control.RunJudge(rules, p("max_missing_periods"), estimates_drive=p("method") != "none",
                                       data_wait_s=p("data_wait_s"))
-        self.started = self.last_command = time.monotonic()
+        self.started = time.monotonic()
+        # start-up waits on readiness: the clock until the first command starts at the rig's
+        # first message (a loaded machine may take a minute to start the rig; the launch ends
+        # if a required node dies meanwhile, and rig_sim starts on its own readiness rules)
+        self.last_command: float | None = None
         self.pzt_on = self.summary = None
         self.steps_sent = 0
         self.events = self.create_publisher(RunEvent)
         self.origin = control.PeriodOrigin(p("period_origin"), held_max=2000)
-        if self.origin.origin_ns is None:
-            self.create_subscription(ActuatorState, self.on_tick)
+        self.create_subscription(ActuatorState, self.on_tick)
         self.create_subscription(ObjectPose, lambda m: m.tracking_valid and self.on_rig(self.judge.pose, m.stamp_ns, m.travel_mm))
         self.create_subscription(RobotState, lambda m: self.on_rig(self.judge.robot, m.stamp_ns, m.normal_force_kpa))
         self.create_subscription(SlipEstimate, lambda m: self.judge.estimate(m.period, m.stick_ratio, m.valid))
@@ -84,14 +91,20 @@ class Supervisor(Node):
 
     def on_rig(self, record, stamp_ns: int, value: float) -> None:
         """A pose or F_N of the rig, on the period clock (held until the first tick, if need be)."""
+        if self.last_command is None:
+            self.last_command = time.monotonic()
         if not self.origin.hold((record, stamp_ns, value)):
             stamp = self.origin.relative(stamp_ns)
             if stamp is not None:
                 record(stamp, value, time.monotonic())
 
     def on_tick(self, msg: ActuatorState) -> None:
-        for item in self.origin.tick(msg.step_index, msg.stamp_ns):
-            self.on_rig(*item)
+        if self.last_command is None:
+            self.last_command = time.monotonic()
+        if self.origin.origin_ns is None:
+            for item in self.origin.tick(msg.step_index, msg.stamp_ns):
+                self.on_rig(*item)
+        self.judge.rig_tick(msg.step_index)
 
     def on_command(self, msg: GripCommand) -> None:
         first = self.judge.next_period is None
@@ -112,7 +125,7 @@ class Supervisor(Node):
                                          normal_force_kpa=j.traces["force_kpa"][i]))
         self.steps_sent = j.steps
         timeout = self.param("startup_timeout_s" if j.next_period is None else "silence_timeout_s")
-        if not verdict.ended and now - self.last_command > timeout:
+        if not verdict.ended and self.last_command is not None and now - self.last_command > timeout:
             verdict = control.Verdict("fault", f"graph silent: no grip command for {timeout} s after step "
                                                f"{j.steps} (rig, estimator or controller stopped)")
         if verdict.ended:

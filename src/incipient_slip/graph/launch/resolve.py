@@ -22,7 +22,7 @@ from incipient_slip.graph.launch.parse import Action, LaunchError, Marked, decla
 from incipient_slip.graph.launch.substitute import Scope
 from incipient_slip.graph.launch.topology import NodeTopics, Topology, node_class
 from incipient_slip.graph.params import ParamError, check_params, declared_params, format_value
-from incipient_slip.graph.runtime import READERS_ENV
+from incipient_slip.graph.runtime import READERS_ENV, WRITERS_ENV
 
 __all__ = ["NodeSpec", "LaunchDescription", "find_launch_file", "load", "load_text", "NODE_PACKAGES"]
 
@@ -70,7 +70,7 @@ class LaunchDescription:
         """A YAML-friendly dict (what `launch FILE --print` shows)."""
         nodes = []
         for n in self.nodes:
-            env = {k: v for k, v in n.env.items() if k != READERS_ENV}
+            env = {k: v for k, v in n.env.items() if k not in (READERS_ENV, WRITERS_ENV)}
             readers = json.loads(n.env.get(READERS_ENV, "{}"))
             nodes.append({
                 "name": n.name, "exec": n.exec, "command": " ".join(n.argv()), "params": n.params,
@@ -148,6 +148,9 @@ def _check_and_connect(desc: LaunchDescription) -> None:
         readers = desc.topology.readers_of_node(spec.name)
         if readers:
             spec.env[READERS_ENV] = json.dumps(readers, separators=(",", ":"))
+        writers = desc.topology.writers_of_node_inputs(spec.name)
+        if writers:
+            spec.env[WRITERS_ENV] = json.dumps(writers, separators=(",", ":"))
 
 
 def _resolve_actions(actions: list[Action], scope: Scope, desc: LaunchDescription) -> None:

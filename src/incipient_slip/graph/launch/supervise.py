@@ -30,7 +30,8 @@ from incipient_slip.graph.launch.resolve import LaunchDescription, NodeSpec
 
 __all__ = ["Launcher", "GRACE_S", "EXIT_KILLED"]
 
-GRACE_S = 5.0           # default: SIGTERM ... SIGKILL budget for the whole graph
+GRACE_S = 30.0          # default: SIGTERM ... SIGKILL budget for the whole graph: a loaded
+                        # machine can take seconds to flush and tear down a node (issue 21)
 EXIT_KILLED = EXIT_FAILURE   # a stop that needed SIGKILL
 TICK_S = 0.05           # supervision tick: node exits are found by polling
 

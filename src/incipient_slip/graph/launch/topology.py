@@ -4,7 +4,8 @@ The launcher imports each node's module (it does not start it), takes the `Node`
 defined there, reads its `INPUTS`/`OUTPUTS` and applies the node's remaps. From that table it
 prints the graph (`launch FILE --print`), warns about a topic read but written by no node, and
 tells each node (in `$SLIP_READERS`) the readers of its outputs, which `Node.wait_for_readers`
-waits for. A tool that reads or writes whatever the graph holds declares `ANY_TOPIC` ("*"):
+waits for, and (in `$SLIP_WRITERS`) the writers of its inputs, the only publishers it accepts
+them from. A tool that reads or writes whatever the graph holds declares `ANY_TOPIC` ("*"):
 the recorder and the monitor read every topic, replay writes every topic (what its file holds
 is known only when it runs), so replay waits for every reader of the launch.
 """
@@ -17,6 +18,9 @@ from dataclasses import dataclass, field
 
 from incipient_slip.graph.launch.parse import LaunchError
 from incipient_slip.graph.runtime import ANY_TOPIC, Node
+from incipient_slip.messages import Heartbeat
+
+HEARTBEAT_TOPIC = Heartbeat.TOPIC
 
 __all__ = ["NodeTopics", "Topology", "node_class"]
 
@@ -115,6 +119,17 @@ class Topology:
             if readers:
                 out[ANY_TOPIC] = readers
         return out
+
+    def writers_of_node_inputs(self, name: str) -> dict[str, list[str]]:
+        """{input topic of node `name`: the nodes of this launch that write it}: the only
+        publishers it accepts those topics from (`$SLIP_WRITERS`). Empty for a node that reads
+        every topic (a recorder records what comes) or declares no inputs; a topic no node of
+        the launch writes (an operator's command) and `/heartbeat` (every node's) are left out."""
+        node = next(n for n in self.nodes if n.name == name)
+        inputs = node.inputs or {}
+        if ANY_TOPIC in inputs:
+            return {}
+        return {t: self.writers_of(t) for t in inputs if t != HEARTBEAT_TOPIC and self.writers_of(t)}
 
     def warnings(self) -> list[str]:
         """A line for each topic read by a node but written by none, or declared with two types,

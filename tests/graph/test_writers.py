@@ -1,0 +1,57 @@
+"""Commands and states are accepted only from the writer the launch declared (no spoofing)."""
+from __future__ import annotations
+
+import pytest
+
+from incipient_slip import messages as M
+import json
+
+from incipient_slip.graph.launch.resolve import find_launch_file, load
+from incipient_slip.graph.launch.topology import NodeTopics, Topology
+from incipient_slip.graph.runtime import WRITERS_ENV, Node
+
+FORGED = {M.GripCommand: dict(normal_force_kpa=99.0, period=1, reason="forged"),
+          M.PztState: dict(enabled=False)}
+REAL = {M.GripCommand: lambda i: M.GripCommand(normal_force_kpa=3.0, period=i),
+        M.PztState: lambda i: M.PztState(enabled=True)}
+
+
+@pytest.mark.parametrize("msg_type", [M.GripCommand, M.PztState])
+def test_a_forged_command_or_state_is_refused_and_counted(graph, probe, msg_type):
+    writer_name = "grip_controller" if msg_type is M.GripCommand else "rig_sim"
+    with Node("reader", writers={msg_type.TOPIC: [writer_name]}) as reader, \
+            Node(writer_name) as writer, Node("forger") as forger:
+        got = []
+        reader.create_subscription(msg_type, got.append)
+        real_pub, forged_pub = writer.create_publisher(msg_type), forger.create_publisher(msg_type)
+        assert real_pub.wait_for_subscribers(1, 20)
+        # the forger sends as soon as the reader subscribes to it, or once it was refused
+        probe.until(lambda: forged_pub.subscriber_count() or reader.refused, 20,
+                    nodes=[reader, writer, forger], what="the reader connected to or refused the forger")
+        forged_pub.publish(msg_type(**FORGED[msg_type]))
+        for i in range(3):
+            real_pub.publish(REAL[msg_type](i))
+        forged_pub.publish(msg_type(**FORGED[msg_type]))
+        # before this fix the forged messages arrive (in any order with the real ones)
+        probe.until(lambda: len(got) >= 3 and (len(got) > 3 or reader.refused), 20,
+                    nodes=[reader, writer, forger], what="the real messages and the forger's fate")
+        assert [m for m in got if m.normal_force_kpa == 99.0] == [] if msg_type is M.GripCommand else \
+            [m for m in got if not m.enabled] == []
+        assert len(got) == 3 and list(reader.refused) == [("forger", forger._info.pid)]
+        assert "whose writer in this launch is " + writer_name in reader.refused[("forger", forger._info.pid)]
+        assert forged_pub.subscriber_count() == 0
+
+
+def test_the_launch_tells_each_node_the_writers_of_its_inputs():
+    desc = load(find_launch_file("stabilize.yaml"))
+    env = {n.name: n.env.get(WRITERS_ENV) for n in desc.nodes}
+    rig, sup = json.loads(env["rig_sim"]), json.loads(env["supervisor"])
+    assert rig == {"/grip/command": ["grip_controller"]}     # /pzt/command: no writer in the launch
+    assert sup["/grip/command"] == ["grip_controller"] and sup["/pzt/state"] == ["rig_sim"]
+    assert "/heartbeat" not in sup
+
+
+def test_a_node_reading_every_topic_accepts_every_publisher():
+    desc = load(find_launch_file("stabilize.yaml"))
+    topo = Topology(desc.topology.nodes + [NodeTopics("recorder", {"*": "any"}, {})])
+    assert topo.writers_of_node_inputs("recorder") == {}
