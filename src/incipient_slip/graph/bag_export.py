@@ -155,16 +155,22 @@ def to_export_json(msg: Message, seen: _Counter | None = None) -> dict:
     return out
 
 
-def raw_audio(msg: BiotacPac) -> dict:
+def raw_audio(msg: BiotacPac, upsample: Callable[[np.ndarray], np.ndarray] | None = None,
+              factor: int = 1, delay_samples: float = 0.0) -> dict:
     """`msg`'s P_AC frame as a foxglove.RawAudio object (counts as pcm-s16 samples).
 
-    The frame's stamp is at its last sample; RawAudio's timestamp is the first sample's.
+    The frame's stamp is at its last sample; RawAudio's timestamp is the first sample's. With
+    `upsample` (counts -> int16 at `factor` x 2200 Hz, delaying the signal by `delay_samples`
+    output samples, e.g. `live_view.AudioUpsampler`) the block is at that rate and starts
+    that much earlier.
     """
     n = msg.pac_counts.size
-    start_ns = max(0, msg.stamp_ns - round((n - 1) * 1e9 / PAC_RATE_HZ))
+    pcm = msg.pac_counts if upsample is None else upsample(msg.pac_counts)
+    rate = PAC_RATE_HZ * factor
+    start_ns = max(0, msg.stamp_ns - round((n - 1) * 1e9 / PAC_RATE_HZ + delay_samples * 1e9 / rate))
     return {"timestamp": _time(start_ns),
-            "data": base64.b64encode(msg.pac_counts.astype("<i2").tobytes()).decode("ascii"),
-            "format": "pcm-s16", "sample_rate": PAC_RATE_HZ, "number_of_channels": 1}
+            "data": base64.b64encode(pcm.astype("<i2").tobytes()).decode("ascii"),
+            "format": "pcm-s16", "sample_rate": rate, "number_of_channels": 1}
 
 
 @dataclass
