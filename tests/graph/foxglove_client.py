@@ -14,6 +14,7 @@ import struct
 import time
 from dataclasses import dataclass, field
 
+from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
 SUBPROTOCOL = "foxglove.sdk.v1"
@@ -38,6 +39,7 @@ class FoxgloveClient:
     channels: dict[int, dict] = field(default_factory=dict)        # channel id -> advertisement
     statuses: list[dict] = field(default_factory=list)
     messages: list[Received] = field(default_factory=list)
+    closed: bool = False
     _subs: dict[int, int] = field(default_factory=dict)             # subscription id -> channel id
 
     def __post_init__(self):
@@ -53,10 +55,14 @@ class FoxgloveClient:
         return {c["topic"]: c for c in self.channels.values()}
 
     def pump(self, timeout_s: float = 0.0) -> bool:
-        """Handles one frame if one comes within `timeout_s`; False if none did."""
+        """Handles one frame if one comes within `timeout_s`; False if none did (or the server
+        closed the connection: `closed`)."""
         try:
             frame = self.ws.recv(timeout=timeout_s)
         except TimeoutError:
+            return False
+        except ConnectionClosed:
+            self.closed = True
             return False
         if isinstance(frame, str):
             msg = json.loads(frame)
