@@ -178,6 +178,7 @@ def main(argv=None) -> int:
     ap.add_argument("--model", type=Path, help="model file (default: the shipped models/METHOD.npz)")
     ap.add_argument("--viewer", choices=("none", "stalled"), default="none",
                     help="stalled: the viewer bridge plus a client that never reads")
+    ap.add_argument("--viewer-nice", type=int, default=10, help="the bridge's `nice` (default 10)")
     args = ap.parse_args(argv)
 
     model_path = args.model or default_model_path(args.method)
@@ -192,7 +193,8 @@ def main(argv=None) -> int:
                                                  "wall_timeout_s:=0"]),
                                   ("grip_controller", [f"method:={args.method}",
                                                        "estimate_timeout_s:=5.0"]),
-                                  *([("foxglove_bridge", ["port:=0"])] if args.viewer == "stalled" else []))]
+                                  *([("foxglove_bridge", ["port:=0", f"nice:={args.viewer_nice}"])]
+                                    if args.viewer == "stalled" else []))]
     viewer = None
     try:
         rig = BenchRig(directory, pac)
@@ -239,7 +241,8 @@ def main(argv=None) -> int:
               "phi (features)": est_median * split, "predict (model)": est_median * (1 - split),
               "control (law + command)": ctl_ms}
     print(f"bench-loop: {args.periods} lock-step periods ({args.warmup} warm-up), method {args.method}, "
-          f"viewer {args.viewer}, load average {os.getloadavg()[0]:.1f}, "
+          f"viewer {args.viewer}" + (f" (nice {args.viewer_nice})" if args.viewer == "stalled" else "") +
+          f", load average {os.getloadavg()[0]:.1f}, "
           f"model {model_path.name} ({model.kind}), {os.cpu_count()} cores, {wall:.1f} s wall, "
           f"{rig.holds} holds")
     print(f"P_AC last frame publish -> GripCommand received: median {median:.3f} ms, "

@@ -161,3 +161,40 @@ def test_a_stalled_client_neither_blocks_the_bridge_nor_starves_another_client()
                                            ("192.168.1.4", False), ("example.org", False)])
 def test_only_loopback_addresses_count_as_local(host, loopback):
     assert is_loopback(host) is loopback
+
+
+def served_url(proc) -> tuple[str, list[str]]:
+    """The URL from the bridge's 'serving ws://...' line, and the stderr lines up to it."""
+    lines = []
+    for raw in proc.stderr:
+        lines.append(raw.decode(errors="replace"))
+        if "serving ws://" in lines[-1]:
+            return lines[-1].split("serving ", 1)[1].split()[0], lines
+    raise AssertionError(f"the bridge ended without serving:\n{''.join(lines)}")
+
+
+def test_a_non_loopback_address_is_served_with_one_warning_line(graph):
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.foxglove_bridge", "host:=0.0.0.0", "port:=0"])
+    url, lines = served_url(proc)
+    warnings = [line for line in lines if "WARNING" in line]
+    assert len(warnings) == 1 and "no authentication" in warnings[0], lines
+    client = FoxgloveClient(url.replace("0.0.0.0", "127.0.0.1"))
+    client.until(lambda: client.server_info is not None)
+    client.close()
+
+
+def test_slip_view_attaches_to_the_running_graph_and_advertises_its_topics(graph, probe):
+    talker = probe.node.create_publisher(SlipEstimate)          # a node of the running graph
+    proc = graph.spawn(["python", "-m", "incipient_slip.cli", "view", "--port", "0"])
+    url, lines = served_url(proc)
+    assert not [line for line in lines if "WARNING" in line], lines
+    client = FoxgloveClient(url)
+    client.until(lambda: SlipEstimate.TOPIC in client.topics(), what="the probe's topic advertised")
+    client.subscribe([SlipEstimate.TOPIC])
+    # the bridge's hello (its subscription to every topic) reached the probe's publisher
+    probe.until(lambda: talker.subscriber_count() >= 1, procs=[proc], what="the bridge subscribed")
+    sent = estimate(7)
+    probe.until(lambda: (talker.publish(sent), client.pump(0.05))[1] and client.messages, procs=[proc],
+                what="a message through slip view")
+    assert client.messages[0].payload["stick_ratio"] == sent.stick_ratio
+    client.close()

@@ -11,12 +11,14 @@ services (graph/live_view.py). Needs the `[view]` extra (foxglove-sdk).
 from __future__ import annotations
 
 import importlib.util
+import os
 import sys
 import time
 
 from incipient_slip.errors import EXIT_USAGE, UsageError
 from incipient_slip.graph import discovery
 from incipient_slip.graph.live_view import EXTRA_HINT, LiveView, is_loopback
+from incipient_slip.graph.params import Param
 from incipient_slip.graph.runtime import ANY_TOPIC, POLL_S, Node, run_node
 from incipient_slip.messages import Message, MessageError
 
@@ -26,13 +28,20 @@ __all__ = ["FoxgloveBridge", "register"]
 class FoxgloveBridge(Node):
     """Serves every topic of the graph as a Foxglove WebSocket channel (JSON + JSON Schema)."""
 
-    PARAMS = {"host": "127.0.0.1", "port": 8765, "backlog": 1024, "audio_rate_hz": 8800,
-              "wait_for_client_s": 0.0}
+    PARAMS = {"host": "127.0.0.1", "port": 8765,
+              "backlog": Param(1024, lo=1, help="messages queued per client; the oldest go first"),
+              "audio_rate_hz": Param(8800, lo=2200, help="P_AC audio rate: a multiple of 2200 Hz"),
+              "wait_for_client_s": Param(0.0, lo=0.0, help="hold this node's start (and a launch's "
+                                         "sources) until a viewer subscribes, at most this long"),
+              "nice": Param(10, lo=0, hi=19, help="CPU priority below the graph's nodes (os.nice)")}
     INPUTS = {ANY_TOPIC: Message}       # every topic of the graph, like the recorder
     OUTPUTS: dict = {}
 
     def __init__(self, **kwargs):
         super().__init__("foxglove_bridge", **kwargs)
+        # on a busy machine the loop's nodes get the CPU first; the server's threads, started
+        # below, inherit this niceness
+        os.nice(self.param("nice"))
         host = self.param("host")
         if not is_loopback(host):
             self.warn(f"serving on {host}, not the loopback address: anyone who reaches it sees "
