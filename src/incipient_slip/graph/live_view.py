@@ -48,24 +48,31 @@ def is_loopback(host: str) -> bool:
 
 
 class AudioUpsampler:
-    """Streams int16 frames up by an integer `factor` (zero insertion + a windowed-sinc lowpass
-    at the input's Nyquist); the filter state carries over from frame to frame."""
+    """Streams int16 frames up by an integer `factor`: zero insertion and a windowed-sinc lowpass
+    at the input's Nyquist (`scipy.signal.upfirdn` of the whole stream, computed polyphase frame
+    by frame: the last input samples carry over, so frames join without a seam)."""
 
     def __init__(self, factor: int, taps_per_phase: int = 12):
         self.factor = factor
         self.taps = (signal.firwin(taps_per_phase * factor, 1.0 / factor) * factor if factor > 1
                      else np.ones(1))
         self.delay_samples = (len(self.taps) - 1) / 2        # at the output rate
-        self._state = np.zeros(len(self.taps) - 1)
+        per_phase = -(-len(self.taps) // factor)
+        padded = np.zeros(per_phase * factor)
+        padded[:len(self.taps)] = self.taps
+        # row k, column p: the tap that weighs input n-k into output factor*n+p
+        self._phases = padded.reshape(per_phase, factor)
+        self._history = np.zeros(per_phase - 1)
 
     def __call__(self, counts: np.ndarray) -> np.ndarray:
         """The frame `counts` at `factor` times the rate, as int16 (clipped)."""
-        if self.factor == 1:
-            return counts.astype(np.int16)
-        up = np.zeros(counts.size * self.factor)
-        up[::self.factor] = counts
-        out, self._state = signal.lfilter(self.taps, 1.0, up, zi=self._state)
-        return np.clip(np.rint(out), -32768, 32767).astype(np.int16)
+        x = np.concatenate([self._history, counts.astype(float)])
+        if self._history.size:
+            self._history = x[-self._history.size:]
+        # windows[n, k] = x[n - k] for the frame's n (newest first)
+        windows = np.lib.stride_tricks.sliding_window_view(x, self._phases.shape[0])[:, ::-1]
+        out = windows @ self._phases
+        return np.clip(np.rint(out.ravel()), -32768, 32767).astype(np.int16)
 
 
 class LiveView:
@@ -87,7 +94,7 @@ class LiveView:
         self._audio: dict[str, tuple[object, AudioUpsampler]] = {}
         self.server = foxglove.start_server(
             name=name, host=host, port=port, capabilities=[], context=self.context,
-            message_backlog_size=backlog, server_listener=_Listener(self.subscribed))
+            message_backlog_size=backlog, server_listener=_listener(self.subscribed))
         self.host, self.port = host, self.server.port
 
     def offer(self, topic: str, type_name: str) -> None:
@@ -137,11 +144,13 @@ class LiveView:
         channel.log(json.dumps(obj).encode(), log_time=msg.stamp_ns)
 
 
-class _Listener:
-    """foxglove-sdk server callbacks: notes the first subscription (for `wait_for_client_s`)."""
+def _listener(subscribed: threading.Event):
+    """foxglove-sdk server callbacks (the SDK's ServerListener, whose other methods do nothing):
+    notes the first subscription (for the bridge's `wait_for_client_s`)."""
+    from foxglove.websocket import ServerListener
 
-    def __init__(self, subscribed: threading.Event):
-        self.subscribed = subscribed
+    class Listener(ServerListener):
+        def on_subscribe(self, client, channel) -> None:
+            subscribed.set()
 
-    def on_subscribe(self, client, channel) -> None:
-        self.subscribed.set()
+    return Listener()
