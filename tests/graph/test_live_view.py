@@ -14,7 +14,7 @@ from jsonschema import Draft202012Validator  # noqa: E402
 
 from foxglove_client import FoxgloveClient  # noqa: E402
 from incipient_slip.graph.bag_export import RAW_AUDIO_SCHEMA, to_export_json  # noqa: E402
-from incipient_slip.graph.live_view import AudioUpsampler, LiveView, is_loopback  # noqa: E402
+from incipient_slip.graph.live_view import LiveView, is_loopback  # noqa: E402
 from incipient_slip.messages import BiotacPac, SlipEstimate, encode  # noqa: E402
 
 pytestmark = pytest.mark.timeout(60)
@@ -105,16 +105,6 @@ def test_p_ac_audio_is_upsampled_to_a_rate_browsers_play_and_keeps_the_tone(view
     image = spectrum[np.abs(np.fft.rfftfreq(pcm[400:].size, 1 / 8800) - 2000.0) < 20].max()
     assert image < 0.05 * spectrum.max()
     client.close()
-
-
-def test_upsampler_frame_by_frame_equals_upfirdn_of_the_whole_stream():
-    """No seam at frame edges: the frames together are scipy's upfirdn of the stream."""
-    from scipy.signal import upfirdn
-    stream = np.random.default_rng(0).integers(-2000, 2000, 22 * 30).astype(np.int16)
-    framed = AudioUpsampler(4)
-    by_frame = np.concatenate([framed(f) for f in stream.reshape(30, 22)])
-    whole = upfirdn(framed.taps, stream.astype(float), up=4)[:by_frame.size]
-    assert np.array_equal(by_frame, np.clip(np.rint(whole), -32768, 32767).astype(np.int16))
 
 
 def test_client_publishing_parameters_and_services_are_refused(view):

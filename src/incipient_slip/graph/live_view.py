@@ -9,8 +9,8 @@ channel `<topic>/audio` of `foxglove.RawAudio`.
 
 Audio: P_AC is 2200 Hz, below the 8-96 kHz every browser's Web Audio `AudioBuffer` must support
 (Chromium's floor is 3 kHz), so a browser-based Audio panel cannot be relied on to play it.
-The live audio is upsampled (`AudioUpsampler`, default x4 to 8800 Hz, a windowed-sinc FIR
-whose state runs across frames); the raw counts stay on `/biotac/pac`.
+The live audio is upsampled as in the export (`bag_export.AudioUpsampler`, x4 to 8800 Hz by
+default); the raw counts stay on `/biotac/pac`.
 
 Safety: no capability is advertised, so the server refuses client publishing, parameters and
 services (status "does not support ..."); no viewer can command the rig. A slow or stalled
@@ -23,11 +23,9 @@ import ipaddress
 import json
 import threading
 
-import numpy as np
-from scipy import signal
-
 from incipient_slip.graph.bag_export import (
-    AUDIO_SUFFIX, RAW_AUDIO_SCHEMA, export_schema, raw_audio, to_export_json,
+    AUDIO_RATE_HZ, AUDIO_SUFFIX, RAW_AUDIO_SCHEMA, AudioUpsampler, export_schema, raw_audio,
+    to_export_json,
 )
 from incipient_slip.messages import MESSAGE_TYPES, PAC_RATE_HZ, BiotacPac, decode_any
 
@@ -47,39 +45,11 @@ def is_loopback(host: str) -> bool:
         return False
 
 
-class AudioUpsampler:
-    """Streams int16 frames up by an integer `factor`: zero insertion and a windowed-sinc lowpass
-    at the input's Nyquist (`scipy.signal.upfirdn` of the whole stream, computed polyphase frame
-    by frame: the last input samples carry over, so frames join without a seam)."""
-
-    def __init__(self, factor: int, taps_per_phase: int = 12):
-        self.factor = factor
-        self.taps = (signal.firwin(taps_per_phase * factor, 1.0 / factor) * factor if factor > 1
-                     else np.ones(1))
-        self.delay_samples = (len(self.taps) - 1) / 2        # at the output rate
-        per_phase = -(-len(self.taps) // factor)
-        padded = np.zeros(per_phase * factor)
-        padded[:len(self.taps)] = self.taps
-        # row k, column p: the tap that weighs input n-k into output factor*n+p
-        self._phases = padded.reshape(per_phase, factor)
-        self._history = np.zeros(per_phase - 1)
-
-    def __call__(self, counts: np.ndarray) -> np.ndarray:
-        """The frame `counts` at `factor` times the rate, as int16 (clipped)."""
-        x = np.concatenate([self._history, counts.astype(float)])
-        if self._history.size:
-            self._history = x[-self._history.size:]
-        # windows[n, k] = x[n - k] for the frame's n (newest first)
-        windows = np.lib.stride_tricks.sliding_window_view(x, self._phases.shape[0])[:, ::-1]
-        out = windows @ self._phases
-        return np.clip(np.rint(out.ravel()), -32768, 32767).astype(np.int16)
-
-
 class LiveView:
     """A foxglove-sdk WebSocket server with a JSON channel per graph topic (see module doc)."""
 
     def __init__(self, host: str = "127.0.0.1", port: int = 8765, *, backlog: int = 1024,
-                 audio_rate_hz: int = 4 * PAC_RATE_HZ, name: str = "incipient-slip"):
+                 audio_rate_hz: int = AUDIO_RATE_HZ, name: str = "incipient-slip"):
         try:
             import foxglove
         except ImportError:
@@ -140,7 +110,7 @@ class LiveView:
         return channel
 
     def _log_audio(self, msg: BiotacPac, channel, upsample: AudioUpsampler) -> None:
-        obj = raw_audio(msg, upsample, upsample.factor, upsample.delay_samples)
+        obj = raw_audio(msg, upsample)
         channel.log(json.dumps(obj).encode(), log_time=msg.stamp_ns)
 
 
