@@ -178,7 +178,8 @@ def main(argv=None) -> int:
     ap.add_argument("--model", type=Path, help="model file (default: the shipped models/METHOD.npz)")
     ap.add_argument("--viewer", choices=("none", "stalled"), default="none",
                     help="stalled: the viewer bridge plus a client that never reads")
-    ap.add_argument("--viewer-nice", type=int, default=10, help="the bridge's `nice` (default 10)")
+    ap.add_argument("--viewer-priority", choices=("idle", "low", "normal"), default="idle",
+                    help="the bridge's `priority` param (default idle)")
     args = ap.parse_args(argv)
 
     model_path = args.model or default_model_path(args.method)
@@ -193,7 +194,7 @@ def main(argv=None) -> int:
                                                  "wall_timeout_s:=0"]),
                                   ("grip_controller", [f"method:={args.method}",
                                                        "estimate_timeout_s:=5.0"]),
-                                  *([("foxglove_bridge", ["port:=0", f"nice:={args.viewer_nice}"])]
+                                  *([("foxglove_bridge", ["port:=0", f"priority:={args.viewer_priority}"])]
                                     if args.viewer == "stalled" else []))]
     viewer = None
     try:
@@ -241,7 +242,7 @@ def main(argv=None) -> int:
               "phi (features)": est_median * split, "predict (model)": est_median * (1 - split),
               "control (law + command)": ctl_ms}
     print(f"bench-loop: {args.periods} lock-step periods ({args.warmup} warm-up), method {args.method}, "
-          f"viewer {args.viewer}" + (f" (nice {args.viewer_nice})" if args.viewer == "stalled" else "") +
+          f"viewer {args.viewer}" + (f" (priority {args.viewer_priority})" if args.viewer == "stalled" else "") +
           f", load average {os.getloadavg()[0]:.1f}, "
           f"model {model_path.name} ({model.kind}), {os.cpu_count()} cores, {wall:.1f} s wall, "
           f"{rig.holds} holds")

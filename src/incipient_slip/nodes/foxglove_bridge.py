@@ -17,10 +17,11 @@ import time
 
 from incipient_slip.errors import EXIT_USAGE, UsageError
 from incipient_slip.graph import discovery
+from incipient_slip.graph.bag_export import AUDIO_RATE_HZ
 from incipient_slip.graph.live_view import EXTRA_HINT, LiveView, is_loopback
 from incipient_slip.graph.params import Param
 from incipient_slip.graph.runtime import ANY_TOPIC, POLL_S, Node, run_node
-from incipient_slip.messages import Message, MessageError
+from incipient_slip.messages import PAC_RATE_HZ, Message, MessageError
 
 __all__ = ["FoxgloveBridge", "register"]
 
@@ -30,18 +31,21 @@ class FoxgloveBridge(Node):
 
     PARAMS = {"host": "127.0.0.1", "port": 8765,
               "backlog": Param(1024, lo=1, help="messages queued per client; the oldest go first"),
-              "audio_rate_hz": Param(8800, lo=2200, help="P_AC audio rate: a multiple of 2200 Hz"),
+              "audio_rate_hz": Param(AUDIO_RATE_HZ, lo=PAC_RATE_HZ,
+                                     help=f"P_AC audio rate: a multiple of {PAC_RATE_HZ} Hz"),
               "wait_for_client_s": Param(0.0, lo=0.0, help="hold this node's start (and a launch's "
                                          "sources) until a viewer subscribes, at most this long"),
-              "nice": Param(10, lo=0, hi=19, help="CPU priority below the graph's nodes (os.nice)")}
+              "priority": Param("idle", choices=("idle", "low", "normal"),
+                                help="CPU priority: idle = only CPU time no node wants (SCHED_IDLE), "
+                                     "low = nice 10, normal = as the graph's nodes")}
     INPUTS = {ANY_TOPIC: Message}       # every topic of the graph, like the recorder
     OUTPUTS: dict = {}
 
     def __init__(self, **kwargs):
         super().__init__("foxglove_bridge", **kwargs)
         # on a busy machine the loop's nodes get the CPU first; the server's threads, started
-        # below, inherit this niceness
-        os.nice(self.param("nice"))
+        # below, inherit this policy
+        lower_priority(self.param("priority"))
         host = self.param("host")
         if not is_loopback(host):
             self.warn(f"serving on {host}, not the loopback address: anyone who reaches it sees "
@@ -79,6 +83,14 @@ class FoxgloveBridge(Node):
             if time.monotonic() > deadline:
                 self.warn(f"no viewer subscribed within {timeout_s:g} s; going on")
                 return
+
+
+def lower_priority(priority: str) -> None:
+    """Puts this process (its threads started from now on) below the graph's nodes."""
+    if priority == "idle" and hasattr(os, "SCHED_IDLE"):
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+    elif priority in ("idle", "low"):       # no SCHED_IDLE (not Linux): nice is what there is
+        os.nice(10)
 
 
 def main(argv=None):
