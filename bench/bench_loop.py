@@ -176,10 +176,11 @@ def main(argv=None) -> int:
     ap.add_argument("--method", default="injection", choices=("injection", "vibrotactile"))
     ap.add_argument("--gap-ms", type=float, default=3.0, help="pause before the timed last frame")
     ap.add_argument("--model", type=Path, help="model file (default: the shipped models/METHOD.npz)")
-    ap.add_argument("--viewer", choices=("none", "stalled"), default="none",
-                    help="stalled: the viewer bridge plus a client that never reads")
-    ap.add_argument("--viewer-priority", choices=("idle", "low", "normal"), default="idle",
-                    help="the bridge's `priority` param (default idle)")
+    ap.add_argument("--viewer", choices=("none", "attached", "stalled"), default="none",
+                    help="attached: the viewer bridge, no client; stalled: the bridge plus a "
+                         "client that subscribes to everything and never reads")
+    ap.add_argument("--viewer-priority", choices=("idle", "low", "normal"), default="low",
+                    help="the bridge's `priority` param (default low, as the node's)")
     args = ap.parse_args(argv)
 
     model_path = args.model or default_model_path(args.method)
@@ -195,17 +196,17 @@ def main(argv=None) -> int:
                                   ("grip_controller", [f"method:={args.method}",
                                                        "estimate_timeout_s:=5.0"]),
                                   *([("foxglove_bridge", ["port:=0", f"priority:={args.viewer_priority}"])]
-                                    if args.viewer == "stalled" else []))]
+                                    if args.viewer != "none" else []))]
     viewer = None
     try:
         rig = BenchRig(directory, pac)
         rig.gap_s = args.gap_ms / 1000.0
         # handshakes: the nodes subscribed to what we publish, and we hear them
-        readers = 2 if args.viewer == "stalled" else 1
+        readers = 1 if args.viewer == "none" else 2
         for pub in (rig.pac_pub, rig.tick_pub):
             if not pub.wait_for_subscribers(readers, 30):
                 raise SystemExit(f"bench-loop: fewer than {readers} subscribers to {pub.topic}")
-        names = {"estimator", "grip_controller"} | ({"foxglove_bridge"} if args.viewer == "stalled" else set())
+        names = {"estimator", "grip_controller"} | ({"foxglove_bridge"} if args.viewer != "none" else set())
         rig.wait(lambda: names <= rig.heard, 30, "node heartbeats")
         if args.viewer == "stalled":
             viewer = stalled_viewer(rig, bridge_url(procs[-1]))
@@ -242,7 +243,7 @@ def main(argv=None) -> int:
               "phi (features)": est_median * split, "predict (model)": est_median * (1 - split),
               "control (law + command)": ctl_ms}
     print(f"bench-loop: {args.periods} lock-step periods ({args.warmup} warm-up), method {args.method}, "
-          f"viewer {args.viewer}" + (f" (priority {args.viewer_priority})" if args.viewer == "stalled" else "") +
+          f"viewer {args.viewer}" + (f" (priority {args.viewer_priority})" if args.viewer != "none" else "") +
           f", load average {os.getloadavg()[0]:.1f}, "
           f"model {model_path.name} ({model.kind}), {os.cpu_count()} cores, {wall:.1f} s wall, "
           f"{rig.holds} holds")

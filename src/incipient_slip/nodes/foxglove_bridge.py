@@ -35,7 +35,7 @@ class FoxgloveBridge(Node):
                                      help=f"P_AC audio rate: a multiple of {PAC_RATE_HZ} Hz"),
               "wait_for_client_s": Param(0.0, lo=0.0, help="hold this node's start (and a launch's "
                                          "sources) until a viewer subscribes, at most this long"),
-              "priority": Param("idle", choices=("idle", "low", "normal"),
+              "priority": Param("low", choices=("idle", "low", "normal"),
                                 help="CPU priority: idle = only CPU time no node wants (SCHED_IDLE), "
                                      "low = nice 10, normal = as the graph's nodes")}
     INPUTS = {ANY_TOPIC: Message}       # every topic of the graph, like the recorder
