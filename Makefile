@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-slow bench bench-graph bench-bag bench-sim bench-estimator bench-loop clean
+.PHONY: demo test test-slow bench bench-graph bench-bag bench-sim bench-estimator bench-loop bench-loop-viewer clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -56,3 +56,7 @@ bench-estimator: $(STAMP)
 
 bench-loop: $(STAMP)
 	$(BIN)/python bench/bench_loop.py
+
+# the same with the viewer bridge and a Foxglove client that never reads (docs/performance.md, "Live view")
+bench-loop-viewer: $(STAMP)
+	$(BIN)/python bench/bench_loop.py --viewer stalled
