@@ -23,7 +23,6 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
-from scipy import signal
 
 from incipient_slip.graph.bag import BagError, BagWriter, bag_info, json_schema, read_bag
 from incipient_slip.messages import MESSAGE_TYPES, PAC_RATE_HZ, BiotacPac, Message
@@ -165,6 +164,8 @@ class AudioUpsampler:
     by frame: the last input samples carry over, so frames join without a seam)."""
 
     def __init__(self, factor: int, taps_per_phase: int = 12):
+        from scipy import signal     # here: `slip` imports this module and must start quickly
+
         self.factor = factor
         self.taps = (signal.firwin(taps_per_phase * factor, 1.0 / factor) * factor if factor > 1
                      else np.ones(1))
