@@ -1,9 +1,11 @@
 """`launch stabilize.yaml view:=foxglove` with an independent Foxglove protocol client
 (tests/graph/foxglove_client.py, written from the specification over `websockets`).
 
-The launch holds its start until the client subscribes (`view_wait_s`), so the client sees the
-run from its first message; a probe node in this process hears the same topics from the graph,
-and every message the client decodes must equal the one the graph carried (matched by seq).
+The launch holds its start until the client subscribes (`view_wait_s`; on a loaded machine the
+sources stop waiting after their 10 s, and the bridge, at a lower CPU priority, may drop for a
+client that falls 1024 messages behind, so the test does not ask for every message); a probe
+node in this process hears the same topics from the graph, and every message the client
+decodes must equal the one the graph carried (matched by seq).
 """
 from __future__ import annotations
 
@@ -165,8 +167,6 @@ def test_an_independent_client_receives_each_topic_live_equal_to_what_the_graph_
             assert carried is not None, (topic, m.payload["seq"], "not carried by the graph")
             assert m.payload == json.loads(json.dumps(to_export_json(carried))), topic
             assert m.log_time_ns == carried.stamp_ns
-        # the client saw the run from its start: the graph's first message is the client's first
-        assert got[0].payload["seq"] == min(graph_msgs[topic]), topic
 
 
 def baseline_summary(summary) -> dict:
