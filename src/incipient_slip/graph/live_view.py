@@ -14,8 +14,9 @@ default); the raw counts stay on `/biotac/pac`.
 
 Safety: no capability is advertised, so the server refuses client publishing, parameters and
 services (status "does not support ..."); no viewer can command the rig. A slow or stalled
-client costs the graph nothing: `Channel.log` queues per client (`backlog` messages, oldest
-dropped first) and never blocks, and a topic no client subscribes to is not even decoded.
+client never blocks anything: `Channel.log` queues per client (`backlog` messages, oldest
+dropped first) and returns at once, and a topic no client subscribes to is not even decoded.
+(The bridge's CPU use is another matter on a small machine: docs/performance.md, "Live view".)
 """
 from __future__ import annotations
 
@@ -29,10 +30,9 @@ from incipient_slip.graph.bag_export import (
 )
 from incipient_slip.messages import MESSAGE_TYPES, PAC_RATE_HZ, BiotacPac, decode_any
 
-__all__ = ["LiveView", "AudioUpsampler", "is_loopback", "EXTRA_HINT", "PROTOCOL"]
+__all__ = ["LiveView", "is_loopback", "EXTRA_HINT"]
 
 EXTRA_HINT = "the live view needs foxglove-sdk: pip install 'incipient-slip[view]'"
-PROTOCOL = "foxglove.sdk.v1"          # the WebSocket subprotocol the server accepts
 
 
 def is_loopback(host: str) -> bool:
