@@ -1,15 +1,16 @@
-# Two commands: `make demo` and `make test`. Each creates .venv and installs the project if needed.
+# Two commands: `make demo` and `make test`. Each creates .venv and installs the project if needed
+# (with the test tools and the [view] extra, whose bridge the tests drive).
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-load test-slow bench bench-graph bench-curve bench-bag bench-sim bench-estimator bench-loop clean
+.PHONY: demo test test-load test-slow bench bench-graph bench-curve bench-bag bench-sim bench-estimator bench-loop bench-loop-viewer clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test]'
+	$(BIN)/pip install --quiet -e '.[test,view]'
 	touch $(STAMP)
 
 # One closed-loop run on the simulated rig (rig_sim, estimator, grip_controller, supervisor as
@@ -70,3 +71,7 @@ bench-estimator: $(STAMP)
 
 bench-loop: $(STAMP)
 	$(BIN)/python bench/bench_loop.py
+
+# the same with the viewer bridge and a Foxglove client that never reads (docs/performance.md, "Live view")
+bench-loop-viewer: $(STAMP)
+	$(BIN)/python bench/bench_loop.py --viewer stalled

@@ -16,6 +16,10 @@ Stages: phi and predict are timed in this process on the same windows with the s
 `SlipEstimate.latency_ns`); control is the controller's work per estimate (`control.next_force`
 plus building and encoding the command), timed here; transport is the rest (three hops:
 rig -> estimator -> controller -> rig, with decode and dispatch). Last line: `loop p99 ms = X`.
+
+`--viewer stalled` adds the viewer bridge (nodes/foxglove_bridge.py) as a third process and one
+WebSocket client that subscribes to every channel and then never reads again: the cost a
+stalled Foxglove puts on the loop (docs/performance.md, "Live view").
 """
 from __future__ import annotations
 
@@ -130,6 +134,41 @@ def stage_costs_ns(model, pac: np.ndarray, repeats: int = 200) -> dict:
             "control": float(np.median(t_ctl))}
 
 
+def bridge_url(proc) -> str:
+    """The ws:// URL the bridge process prints on stderr when it serves."""
+    for raw in proc.stderr:
+        line = raw.decode(errors="replace")
+        if "serving ws://" in line:
+            return line.split("serving ", 1)[1].split()[0]
+    raise SystemExit("bench-loop: the viewer bridge ended without serving")
+
+
+def stalled_viewer(rig: "BenchRig", url: str):
+    """A Foxglove protocol client that subscribes to every channel the bridge advertises for the
+    rig's topics, then stops reading (its socket fills; the bridge must drop, not wait)."""
+    import json as _json
+
+    from websockets.sync.client import connect
+
+    ws = connect(url, subprotocols=["foxglove.sdk.v1"], proxy=None, max_queue=1, open_timeout=30,
+                 compression=None).__enter__()
+    channels: dict[str, int] = {}
+    wanted = {"/biotac/pac", "/biotac/pac/audio", "/actuator/state", "/pzt/state"}
+    deadline = time.monotonic() + 30
+    while not wanted <= set(channels):
+        if time.monotonic() > deadline:
+            raise SystemExit(f"bench-loop: the bridge did not advertise {sorted(wanted - set(channels))}")
+        try:
+            frame = ws.recv(timeout=0.1)
+        except TimeoutError:
+            continue
+        if isinstance(frame, str) and _json.loads(frame)["op"] == "advertise":
+            channels.update({c["topic"]: c["id"] for c in _json.loads(frame)["channels"]})
+    ws.send(_json.dumps({"op": "subscribe", "subscriptions": [
+        {"id": i, "channelId": cid} for i, cid in enumerate(channels.values())]}))
+    return ws
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--periods", type=int, default=1500, help="lock-step periods to time")
@@ -137,6 +176,11 @@ def main(argv=None) -> int:
     ap.add_argument("--method", default="injection", choices=("injection", "vibrotactile"))
     ap.add_argument("--gap-ms", type=float, default=3.0, help="pause before the timed last frame")
     ap.add_argument("--model", type=Path, help="model file (default: the shipped models/METHOD.npz)")
+    ap.add_argument("--viewer", choices=("none", "attached", "stalled"), default="none",
+                    help="attached: the viewer bridge, no client; stalled: the bridge plus a "
+                         "client that subscribes to everything and never reads")
+    ap.add_argument("--viewer-priority", choices=("idle", "low", "normal"), default="low",
+                    help="the bridge's `priority` param (default low, as the node's)")
     args = ap.parse_args(argv)
 
     model_path = args.model or default_model_path(args.method)
@@ -150,15 +194,22 @@ def main(argv=None) -> int:
              for name, params in (("estimator", [f"method:={args.method}", f"model:={model_path}",
                                                  "wall_timeout_s:=0"]),
                                   ("grip_controller", [f"method:={args.method}",
-                                                       "estimate_timeout_s:=5.0"]))]
+                                                       "estimate_timeout_s:=5.0"]),
+                                  *([("foxglove_bridge", ["port:=0", f"priority:={args.viewer_priority}"])]
+                                    if args.viewer != "none" else []))]
+    viewer = None
     try:
         rig = BenchRig(directory, pac)
         rig.gap_s = args.gap_ms / 1000.0
-        # handshakes: both nodes subscribed to what we publish, and we hear both
+        # handshakes: the nodes subscribed to what we publish, and we hear them
+        readers = 1 if args.viewer == "none" else 2
         for pub in (rig.pac_pub, rig.tick_pub):
-            if not pub.wait_for_subscribers(1, 30):
-                raise SystemExit(f"bench-loop: nobody subscribed to {pub.topic}")
-        rig.wait(lambda: {"estimator", "grip_controller"} <= rig.heard, 30, "node heartbeats")
+            if not pub.wait_for_subscribers(readers, 30):
+                raise SystemExit(f"bench-loop: fewer than {readers} subscribers to {pub.topic}")
+        names = {"estimator", "grip_controller"} | ({"foxglove_bridge"} if args.viewer != "none" else set())
+        rig.wait(lambda: names <= rig.heard, 30, "node heartbeats")
+        if args.viewer == "stalled":
+            viewer = stalled_viewer(rig, bridge_url(procs[-1]))
         rig.pzt_pub.publish(PztState(enabled=True, stamp_ns=1))
         total = args.warmup + args.periods
         t_start = time.monotonic()
@@ -167,6 +218,8 @@ def main(argv=None) -> int:
             rig.wait(lambda: k in rig.commands, 10, f"GripCommand(period={k})")
         wall = time.monotonic() - t_start
     finally:
+        if viewer is not None:
+            viewer.close()
         for p in procs:
             if p.poll() is None:
                 p.send_signal(signal.SIGTERM)
@@ -190,6 +243,8 @@ def main(argv=None) -> int:
               "phi (features)": est_median * split, "predict (model)": est_median * (1 - split),
               "control (law + command)": ctl_ms}
     print(f"bench-loop: {args.periods} lock-step periods ({args.warmup} warm-up), method {args.method}, "
+          f"viewer {args.viewer}" + (f" (priority {args.viewer_priority})" if args.viewer != "none" else "") +
+          f", load average {os.getloadavg()[0]:.1f}, "
           f"model {model_path.name} ({model.kind}), {os.cpu_count()} cores, {wall:.1f} s wall, "
           f"{rig.holds} holds")
     print(f"P_AC last frame publish -> GripCommand received: median {median:.3f} ms, "

@@ -21,6 +21,7 @@ COMMAND_MODULES = (
     "incipient_slip.experiments.cli",    # reproduce NAME|--list
     "incipient_slip.experiments.run_plot",  # run plot SUMMARY
     "incipient_slip.nodes.device_tools", # robot recover, rig check
+    "incipient_slip.nodes.foxglove_bridge",  # view
 )
 
 

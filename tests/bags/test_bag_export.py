@@ -12,7 +12,9 @@ from jsonschema import Draft202012Validator
 from mcap.reader import make_reader
 
 from incipient_slip.graph.bag import BagWriter, read_bag
-from incipient_slip.graph.bag_export import (JS_SAFE_INT, PAC_RATE_HZ, RAW_AUDIO_SCHEMA,
+from scipy.signal import upfirdn
+
+from incipient_slip.graph.bag_export import (JS_SAFE_INT, PAC_RATE_HZ, RAW_AUDIO_SCHEMA, AudioUpsampler,
                                              export_foxglove, export_schema, to_export_json)
 from incipient_slip.messages import MESSAGE_TYPES, BiotacPac, Heartbeat, SlipEstimate
 
@@ -55,17 +57,22 @@ def test_demo_export_reads_back_valid_with_every_message_and_p_ac_as_raw_audio(t
                                                       "/biotac/pac/audio": 200}
     assert report.counts == {t: len(v) for t, v in by_topic.items()}
     pac = [r for r in source if r.topic == "/biotac/pac"]
+    blocks = []
     for rec, (name, message, obj), (aname, _, audio) in zip(pac, by_topic["/biotac/pac"],
                                                            by_topic["/biotac/pac/audio"]):
         msg = rec.message()
         assert (name, aname) == ("BiotacPac", "foxglove.RawAudio")
         assert obj["pac_counts"] == msg.pac_counts.tolist() and obj["seq"] == msg.seq
         assert (message.log_time, message.publish_time) == (rec.log_time_ns, rec.stamp_ns)
-        samples = np.frombuffer(base64.b64decode(audio["data"]), dtype="<i2")
-        assert samples.tolist() == msg.pac_counts.tolist()
-        assert (audio["format"], audio["sample_rate"], audio["number_of_channels"]) == ("pcm-s16", 2200, 1)
+        blocks.append(np.frombuffer(base64.b64decode(audio["data"]), dtype="<i2"))
+        assert (audio["format"], audio["sample_rate"], audio["number_of_channels"]) == ("pcm-s16", 8800, 1)
         start = audio["timestamp"]["sec"] * 10**9 + audio["timestamp"]["nsec"]
-        assert start == max(0, msg.stamp_ns - round(21e9 / PAC_RATE_HZ))   # first sample's time
+        # first sample's time, less the upsampling filter's delay (47 / 2 samples at 8800 Hz)
+        assert start == max(0, msg.stamp_ns - round(21e9 / PAC_RATE_HZ + 23.5e9 / 8800))
+    # the audio is the P_AC stream upsampled x4, frames joined without a seam
+    stream = np.concatenate([r.message().pac_counts for r in pac]).astype(float)
+    expected = upfirdn(AudioUpsampler(4).taps, stream, up=4)[:4 * stream.size]
+    assert np.array_equal(np.concatenate(blocks), np.clip(np.rint(expected), -32768, 32767).astype(np.int16))
 
 
 @pytest.mark.timeout(30)
@@ -112,3 +119,12 @@ def test_raw_audio_schema_has_foxgloves_fields():
                                                  "number_of_channels"}
     assert RAW_AUDIO_SCHEMA["properties"]["data"]["contentEncoding"] == "base64"
     assert BiotacPac.schema()["fields"]["pac_counts"]["array"] == "<i2"    # pcm-s16 as it is
+
+
+def test_upsampler_frame_by_frame_equals_upfirdn_of_the_whole_stream():
+    """No seam at frame edges: the frames together are scipy's upfirdn of the stream."""
+    stream = np.random.default_rng(0).integers(-2000, 2000, 22 * 30).astype(np.int16)
+    framed = AudioUpsampler(4)
+    by_frame = np.concatenate([framed(f) for f in stream.reshape(30, 22)])
+    whole = upfirdn(framed.taps, stream.astype(float), up=4)[:by_frame.size]
+    assert np.array_equal(by_frame, np.clip(np.rint(whole), -32768, 32767).astype(np.int16))

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from incipient_slip.messages import BiotacPac, Heartbeat, SlipEstimate, encode
+from incipient_slip.messages import BiotacPac, BiotacSlow, Heartbeat, SlipEstimate, encode
 from incipient_slip.graph.bag import BagError, BagWriter, bag_info, json_schema, read_bag
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -161,3 +161,17 @@ def test_shipped_demo_recording_is_what_its_script_generates(tmp_path):
                    capture_output=True, timeout=25)
     assert out.read_bytes() == (DATA / "demo.mcap").read_bytes()
     assert (DATA / "demo.mcap").stat().st_size < 1_000_000
+
+
+@pytest.mark.timeout(10)
+def test_info_gives_the_rate_by_stamps_beside_the_rate_by_receive_time(tmp_path):
+    """A recording received 10x faster than its sensor sampled (lock-step, sped-up rig)."""
+    with BagWriter(tmp_path / "fast.mcap") as bag:
+        for i in range(11):                 # stamped 10 ms apart (100 Hz), received 1 ms apart
+            bag.write("/biotac/slow", BiotacSlow(electrode_counts=np.zeros(19, np.uint16),
+                                                  stamp_ns=10**9 + i * 10_000_000, seq=i),
+                      log_time_ns=i * 1_000_000)
+    (t,) = bag_info(tmp_path / "fast.mcap").topics
+    assert t.rate_hz == pytest.approx(1000.0) and t.stamp_rate_hz == pytest.approx(100.0)
+    plain = bag_info(tmp_path / "fast.mcap").to_plain()["topics"][0]
+    assert plain["stamp_rate_hz"] == pytest.approx(100.0)

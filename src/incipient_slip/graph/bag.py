@@ -542,6 +542,13 @@ class TopicInfo:
         span = self.last_log_ns - self.first_log_ns
         return (self.count - 1) * 1e9 / span if self.count > 1 and span > 0 else 0.0
 
+    @property
+    def stamp_rate_hz(self) -> float:
+        """Mean message rate over the messages' own stamps (the source's time: a lock-step or
+        sped-up recording is received faster than its sensors sampled); 0 for fewer than 2."""
+        span = self.last_stamp_ns - self.first_stamp_ns
+        return (self.count - 1) * 1e9 / span if self.count > 1 and span > 0 else 0.0
+
     def add(self, log_ns: int, stamp_ns: int, sequence: int) -> None:
         """Counts one message (given in receive order)."""
         if self.count == 0:
@@ -603,11 +610,12 @@ class BagInfo:
         twidth = max([len(t.type_name) for t in self.topics] + [4])
         lines.append(f"topics:    {len(self.topics)}")
         lines.append(f"  {'topic':<{width}}  {'type':<{twidth}}  {'count':>8}  {'rate_hz':>9}  "
-                     f"{'stamp_span_s':>12}  {'seq_gaps':>8}")
+                     f"{'stamp_hz':>9}  {'stamp_span_s':>12}  {'seq_gaps':>8}")
         for t in self.topics:
             lines.append(f"  {t.topic:<{width}}  {t.type_name:<{twidth}}  {t.count:>8}  "
-                         f"{t.rate_hz:>9.2f}  {(t.last_stamp_ns - t.first_stamp_ns) / 1e9:>12.3f}  "
-                         f"{t.seq_gaps:>8}")
+                         f"{t.rate_hz:>9.2f}  {t.stamp_rate_hz:>9.2f}  "
+                         f"{(t.last_stamp_ns - t.first_stamp_ns) / 1e9:>12.3f}  {t.seq_gaps:>8}")
+        lines.append("  (rate_hz by receive time, stamp_hz by the messages' stamps)")
         return "\n".join(lines)
 
     def to_plain(self) -> dict:
@@ -616,7 +624,8 @@ class BagInfo:
                 "message_count": self.message_count, "duration_s": self.duration_s,
                 "start_ns": self.start_ns, "end_ns": self.end_ns,
                 "topics": [{"topic": t.topic, "type": t.type_name, "count": t.count,
-                            "rate_hz": t.rate_hz, "first_stamp_ns": t.first_stamp_ns,
+                            "rate_hz": t.rate_hz, "stamp_rate_hz": t.stamp_rate_hz,
+                            "first_stamp_ns": t.first_stamp_ns,
                             "last_stamp_ns": t.last_stamp_ns, "seq_gaps": t.seq_gaps}
                            for t in self.topics],
                 "damage": None if self.damage is None else self.damage.to_plain()}

@@ -3,8 +3,8 @@
 Those viewers do not read msgpack (PlotJuggler does, from the recording as it is). The
 export writes, per recorded topic, a channel with ``message_encoding="json"`` and a
 ``jsonschema`` schema of the JSON object, and for every BiotacPac topic a second channel
-``<topic>/audio`` of Foxglove's well-known ``foxglove.RawAudio`` (pcm-s16, 2200 Hz, mono),
-which the Audio panel plays. Receive times, stamps and seqs are kept.
+``<topic>/audio`` of Foxglove's well-known ``foxglove.RawAudio`` (pcm-s16, mono, upsampled to
+8800 Hz: see AUDIO_RATE_HZ), for the Audio panel. Receive times, stamps and seqs are kept.
 
 JSON of one message: the wire fields (``type``, ``v``, ``stamp_ns``, ``seq``, the message's
 fields) plus ``stamp`` = ``{"sec", "nsec"}``, the stamp as Foxglove's time type, exact for
@@ -28,10 +28,13 @@ from incipient_slip.graph.bag import BagError, BagWriter, bag_info, json_schema,
 from incipient_slip.messages import MESSAGE_TYPES, PAC_RATE_HZ, BiotacPac, Message
 
 __all__ = ["export_foxglove", "export_schema", "to_export_json", "raw_audio", "RAW_AUDIO_SCHEMA",
-           "ExportReport", "JS_SAFE_INT"]
+           "ExportReport", "JS_SAFE_INT", "AudioUpsampler", "AUDIO_RATE_HZ"]
 
 JS_SAFE_INT = (1 << 53) - 1     # the largest integer a JavaScript number holds exactly
 AUDIO_SUFFIX = "/audio"
+# RawAudio's rate: P_AC's 2200 Hz x 4. Viewers' Audio panels play through a browser engine's Web
+# Audio, whose AudioBuffer must accept 8-96 kHz (Chromium's floor is 3 kHz): 2200 Hz may not play.
+AUDIO_RATE_HZ = 4 * PAC_RATE_HZ
 
 _TIME = {"type": "object", "title": "time",
          "properties": {"sec": {"type": "integer", "minimum": 0},
@@ -155,16 +158,51 @@ def to_export_json(msg: Message, seen: _Counter | None = None) -> dict:
     return out
 
 
-def raw_audio(msg: BiotacPac) -> dict:
+class AudioUpsampler:
+    """Streams int16 frames up by an integer `factor`: zero insertion and a windowed-sinc lowpass
+    at the input's Nyquist (`scipy.signal.upfirdn` of the whole stream, computed polyphase frame
+    by frame: the last input samples carry over, so frames join without a seam)."""
+
+    def __init__(self, factor: int, taps_per_phase: int = 12):
+        from scipy import signal     # here: `slip` imports this module and must start quickly
+
+        self.factor = factor
+        self.taps = (signal.firwin(taps_per_phase * factor, 1.0 / factor) * factor if factor > 1
+                     else np.ones(1))
+        self.delay_samples = (len(self.taps) - 1) / 2        # at the output rate
+        per_phase = -(-len(self.taps) // factor)
+        padded = np.zeros(per_phase * factor)
+        padded[:len(self.taps)] = self.taps
+        # row k, column p: the tap that weighs input n-k into output factor*n+p
+        self._phases = padded.reshape(per_phase, factor)
+        self._history = np.zeros(per_phase - 1)
+
+    def __call__(self, counts: np.ndarray) -> np.ndarray:
+        """The frame `counts` at `factor` times the rate, as int16 (clipped)."""
+        x = np.concatenate([self._history, counts.astype(float)])
+        if self._history.size:
+            self._history = x[-self._history.size:]
+        # windows[n, k] = x[n - k] for the frame's n (newest first)
+        windows = np.lib.stride_tricks.sliding_window_view(x, self._phases.shape[0])[:, ::-1]
+        out = windows @ self._phases
+        return np.clip(np.rint(out.ravel()), -32768, 32767).astype(np.int16)
+
+
+def raw_audio(msg: BiotacPac, upsample: AudioUpsampler | None = None) -> dict:
     """`msg`'s P_AC frame as a foxglove.RawAudio object (counts as pcm-s16 samples).
 
-    The frame's stamp is at its last sample; RawAudio's timestamp is the first sample's.
+    The frame's stamp is at its last sample; RawAudio's timestamp is the first sample's. With
+    `upsample` (the topic's stream so far) the block is at its rate and starts earlier by its
+    filter's delay.
     """
     n = msg.pac_counts.size
-    start_ns = max(0, msg.stamp_ns - round((n - 1) * 1e9 / PAC_RATE_HZ))
+    factor, delay = (upsample.factor, upsample.delay_samples) if upsample else (1, 0.0)
+    pcm = upsample(msg.pac_counts) if upsample else msg.pac_counts
+    rate = PAC_RATE_HZ * factor
+    start_ns = max(0, msg.stamp_ns - round((n - 1) * 1e9 / PAC_RATE_HZ + delay * 1e9 / rate))
     return {"timestamp": _time(start_ns),
-            "data": base64.b64encode(msg.pac_counts.astype("<i2").tobytes()).decode("ascii"),
-            "format": "pcm-s16", "sample_rate": PAC_RATE_HZ, "number_of_channels": 1}
+            "data": base64.b64encode(pcm.astype("<i2").tobytes()).decode("ascii"),
+            "format": "pcm-s16", "sample_rate": rate, "number_of_channels": 1}
 
 
 @dataclass
@@ -199,6 +237,7 @@ def export_foxglove(src: str | os.PathLike, dst: str | os.PathLike,
     bag_info(src)           # refuses a missing, foreign or unfinished file before dst exists
     report, seen = ExportReport(src, dst), _Counter()
     channels: dict[str, int] = {}
+    upsamplers: dict[str, AudioUpsampler] = {}
     try:
         with BagWriter(dst, profile="", flush_s=None,
                        metadata={"exported_from": os.path.basename(src), "encoding": "json"}) as out:
@@ -206,7 +245,8 @@ def export_foxglove(src: str | os.PathLike, dst: str | os.PathLike,
                 msg = rec.message()
                 outputs = [(rec.topic, False, to_export_json(msg, seen))]
                 if isinstance(msg, BiotacPac):
-                    outputs.append((rec.topic + AUDIO_SUFFIX, True, raw_audio(msg)))
+                    upsample = upsamplers.setdefault(rec.topic, AudioUpsampler(AUDIO_RATE_HZ // PAC_RATE_HZ))
+                    outputs.append((rec.topic + AUDIO_SUFFIX, True, raw_audio(msg, upsample)))
                 for topic, audio, obj in outputs:
                     cid = channels.get(topic)
                     if cid is None:

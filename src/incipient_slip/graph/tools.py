@@ -1,4 +1,4 @@
-"""`slip topic list|echo|hz` and `slip bag record|play|info|recover|export`: look at a running graph, record it, replay it.
+"""`slip topic list|echo|hz|info|pub`, `slip node list|info` (graph/introspect.py) and `slip bag record|play|info|recover|export`: look at a running graph, record it, replay it.
 
 Each command that touches the graph runs a small node in the foreground (found through the
 same discovery as every node: $SLIP_GRAPH_DIR, $SLIP_GRAPH or --graph); Ctrl-C ends it with
@@ -18,7 +18,7 @@ from pathlib import Path
 
 from incipient_slip.errors import UsageError
 from incipient_slip.messages import MessageError, decode_any, to_plain
-from incipient_slip.graph import discovery
+from incipient_slip.graph import discovery, introspect
 from incipient_slip.graph.bag import FLUSH_S, BagError, bag_info
 from incipient_slip.graph.params import format_value
 from incipient_slip.graph.runtime import Node, run_node
@@ -336,6 +336,8 @@ def register(subparsers) -> None:
                    help="rate over the last N messages (default 100)")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="exit after S seconds")
     p.set_defaults(func=_guard(cmd_topic_hz))
+    introspect.register_topic(tsub, graph, _guard)
+    introspect.register_node(subparsers, graph, _guard)
 
     bag = subparsers.add_parser(
         "bag", help="record, play, inspect, recover and export MCAP recordings",
@@ -404,7 +406,7 @@ def register(subparsers) -> None:
         description="Foxglove and Lichtblick do not read msgpack. --foxglove writes every topic "
         "as a JSON channel with a jsonschema schema (arrays as lists, NaN as null, integers "
         "beyond 2^53 as decimal strings, plus 'stamp' as {sec, nsec}), and each P_AC topic "
-        "also as <topic>/audio of type foxglove.RawAudio (pcm-s16, 2200 Hz) for the Audio panel. "
+        "also as <topic>/audio of type foxglove.RawAudio (pcm-s16, upsampled to 8800 Hz) for the Audio panel. "
         "Receive times, stamps and seqs are kept.")
     p.add_argument("bag", metavar="IN.mcap", help="a finished recording (recover it first if not)")
     p.add_argument("out", metavar="OUT.mcap")

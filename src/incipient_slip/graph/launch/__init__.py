@@ -76,6 +76,31 @@ def _printed(plain: dict) -> str:
             + dump({k: v for k, v in plain.items() if k not in ("file", "args", "topics")}))
 
 
+def _shown_args(desc: LaunchDescription) -> str:
+    """Each launch arg with its value (the default unless given) and the file's description."""
+    width = max((len(name) for name in desc.args), default=0)
+    lines = []
+    for name, value in desc.args.items():
+        text = desc.arg_descriptions.get(name, "")
+        lines.append(f"{name:<{width}} := {value!s:<12}" + (f"  # {text}" if text else ""))
+    return "\n".join(lines) + "\n"
+
+
+def _dot(desc: LaunchDescription) -> str:
+    """The graph in Graphviz: nodes as boxes, topics as ellipses, writer -> topic -> reader."""
+    def q(text: str) -> str:
+        return '"' + text.replace('"', '\\"') + '"'
+    lines = ["digraph launch {", "  rankdir=LR;", "  node [fontname=Helvetica];"]
+    lines += [f"  {q(n.name)} [shape=box];" for n in desc.nodes]
+    for row in (desc.topology.to_plain() if desc.topology else []):
+        topic = row["topic"]
+        label = q(f"{topic}\\n{row['type']}")
+        lines.append(f"  {q(topic)} [shape=ellipse, label={label}];")
+        lines += [f"  {q(w)} -> {q(topic)};" for w in row["writers"]]
+        lines += [f"  {q(topic)} -> {q(r)};" for r in row["readers"]]
+    return "\n".join(lines + ["}"]) + "\n"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="launch", formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -87,6 +112,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--print", action="store_true", dest="print_only",
                         help="print the resolved graph (args, nodes, params, remaps, topics with "
                         "their writers and readers) and exit")
+    parser.add_argument("--dot", action="store_true",
+                        help="with --print: the graph of nodes and topics as Graphviz "
+                        "(launch FILE --print --dot | dot -Tsvg > graph.svg)")
+    parser.add_argument("--show-args", action="store_true",
+                        help="print each launch arg with its default (or given value) and its "
+                        "description, and exit")
     parser.add_argument("--grace", type=float, default=GRACE_S, metavar="S",
                         help=f"seconds from SIGTERM to SIGKILL at shutdown (default {GRACE_S:g})")
     parser.add_argument("--graph", metavar="NAME", help="graph name (default $SLIP_GRAPH or "
@@ -100,8 +131,13 @@ def main(argv: list[str] | None = None) -> int:
         if not args.grace >= 0:
             raise LaunchError(f"--grace must be >= 0 s, got {args.grace}")
         desc = load(args.file, _split_cli_args(args.args))
+        if args.show_args:
+            print(_shown_args(desc), end="")
+            return 0
+        if args.dot and not args.print_only:
+            raise LaunchError("--dot goes with --print (launch FILE --print --dot)")
         if args.print_only:
-            print(_printed(desc.to_plain()), end="")
+            print(_dot(desc) if args.dot else _printed(desc.to_plain()), end="")
             return 0
         graph_dir = discovery.graph_dir(args.graph)
     except (LaunchError, discovery.GraphNameError) as exc:

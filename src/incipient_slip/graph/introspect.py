@@ -1,0 +1,192 @@
+"""`slip node list|info`, `slip topic info` and `slip topic pub`: the ROS 2 habits, over discovery.
+
+The first three read the nodes' announcement files (graph/discovery.py): who runs, what each
+publishes and subscribes. `topic pub` builds one message from YAML, validated by the messages
+contract (field names, types, bounds, array shapes), and publishes it from a small node once the
+topic's live readers have subscribed. Commands are refused (`--force` overrides): a message on a
+command topic moves hardware or changes the run, and on a graph with real devices any message
+can.
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+
+import yaml
+
+from incipient_slip.errors import UsageError
+from incipient_slip.graph import discovery
+from incipient_slip.graph.runtime import ANY_TOPIC, Node
+from incipient_slip.messages import (
+    DEFAULT_TOPICS, MESSAGE_TYPES, ActuatorCommand, GripCommand, Message, MessageError, PztCommand,
+    RobotRecover, to_plain,
+)
+
+__all__ = ["cmd_node_list", "cmd_node_info", "cmd_topic_info", "cmd_topic_pub", "COMMAND_TOPICS",
+           "DEVICE_NODES"]
+
+# topics whose readers move the rig or change the run
+COMMAND_TOPICS = frozenset(t.TOPIC for t in (GripCommand, ActuatorCommand, PztCommand, RobotRecover))
+# nodes that drive real devices: their presence makes the graph a hardware graph
+DEVICE_NODES = frozenset({"ur5", "linear_actuator", "pzt_injector", "biotac_reader", "mocap_bridge"})
+
+
+def _nodes(args) -> list[discovery.NodeInfo]:
+    directory = discovery.graph_dir(getattr(args, "graph", None))
+    return sorted((i for i in discovery.scan(directory) if i.pid != os.getpid()),
+                  key=lambda i: (i.name, i.pid))
+
+
+def _plain(info: discovery.NodeInfo) -> dict:
+    return {"name": info.name, "pid": info.pid, "endpoint": info.endpoint,
+            "publishes": info.publishes, "subscribes": info.subscribes}
+
+
+def cmd_node_list(args) -> int:
+    """Prints the running nodes of the graph, one a line (name, pid)."""
+    nodes = _nodes(args)
+    if args.json:
+        print(json.dumps([_plain(i) for i in nodes]))
+    elif not nodes:
+        print(f"no nodes in graph {discovery.graph_dir(args.graph)}")
+    for info in nodes if not args.json else ():
+        print(f"{info.name}  (pid {info.pid})")
+    return 0
+
+
+def cmd_node_info(args) -> int:
+    """Prints one node's pid, endpoint, publications and subscriptions."""
+    found = [i for i in _nodes(args) if i.name == args.node]
+    if not found:
+        raise UsageError(f"no node {args.node!r} in graph {discovery.graph_dir(args.graph)} "
+                         f"(slip node list shows the running ones)")
+    for info in found:
+        if args.json:
+            print(json.dumps(_plain(info)))
+            continue
+        print(f"{info.name}\n  pid: {info.pid}\n  endpoint: {info.endpoint}\n  publishes:")
+        for topic, type_name in sorted(info.publishes.items()):
+            print(f"    {topic}: {type_name}")
+        print("  subscribes:")
+        for topic, type_name in sorted(info.subscribes.items()):
+            print(f"    {'(every topic)' if topic == ANY_TOPIC else topic}: {type_name}")
+    return 0
+
+
+def cmd_topic_info(args) -> int:
+    """Prints a topic's type, its writers and its live readers (a node reading every topic
+    counts as a reader)."""
+    nodes = _nodes(args)
+    writers = [i for i in nodes if args.topic in i.publishes]
+    readers = [i for i in nodes if args.topic in i.subscribes or ANY_TOPIC in i.subscribes]
+    types = {i.publishes[args.topic] for i in writers} | {i.subscribes[args.topic] for i in readers
+                                                         if args.topic in i.subscribes}
+    type_name = next((t for t in sorted(types) if t in MESSAGE_TYPES),
+                     DEFAULT_TOPICS[args.topic].__name__ if args.topic in DEFAULT_TOPICS else "?")
+    row = {"topic": args.topic, "type": type_name, "writers": [i.name for i in writers],
+           "readers": [i.name for i in readers]}
+    if args.json:
+        print(json.dumps(row))
+    else:
+        print(f"topic: {row['topic']}\ntype: {row['type']}\n"
+              f"writers ({len(writers)}): {', '.join(row['writers']) or '-'}\n"
+              f"readers ({len(readers)}): {', '.join(row['readers']) or '-'}")
+    return 0
+
+
+def message_from_yaml(topic: str, text: str, type_name: str | None = None) -> Message:
+    """The message `text` (a YAML mapping of field values) describes on `topic`; UsageError
+    naming the field and what would be right when the contract refuses it."""
+    msg_type = MESSAGE_TYPES.get(type_name) if type_name else DEFAULT_TOPICS.get(topic)
+    if msg_type is None:
+        raise UsageError(f"{topic}: no message type known for it (not a default topic and no "
+                         f"node announces it); known topics: {', '.join(sorted(DEFAULT_TOPICS))}")
+    try:
+        fields = yaml.safe_load(text) if text.strip() else {}
+    except yaml.YAMLError as exc:
+        raise UsageError(f"message is not YAML: {exc}") from None
+    if not isinstance(fields, dict):
+        raise UsageError(f"message must be a YAML mapping of fields, e.g. '{{stick_ratio: 0.3}}'")
+    known = set(msg_type.schema()["fields"]) - {"stamp_ns", "seq"}
+    unknown = sorted(set(fields) - known)
+    if unknown:
+        raise UsageError(f"{msg_type.__name__} has no field {', '.join(unknown)}; "
+                         f"fields: {', '.join(sorted(known))}")
+    try:
+        return msg_type(**fields)
+    except (MessageError, TypeError, ValueError) as exc:
+        raise UsageError(f"{topic} ({msg_type.__name__}): {exc}") from None
+
+
+class _OnePublisher(Node):
+    """Publishes given messages on one topic (`slip topic pub`)."""
+
+    def __init__(self, msg_type: type[Message], topic: str, **kwargs):
+        super().__init__("slip_topic_pub", heartbeat_s=0, **kwargs)
+        self.pub = self.create_publisher(msg_type, topic)   # OUTPUTS undeclared: any topic
+
+
+def cmd_topic_pub(args) -> int:
+    """Publishes one message (or --times N at --rate) on a topic of the running graph."""
+    nodes = _nodes(args)
+    announced = {i.publishes.get(args.topic) or i.subscribes.get(args.topic) for i in nodes} - {None, "raw"}
+    msg = message_from_yaml(args.topic, args.message, next(iter(sorted(announced)), None))
+    devices = sorted({i.name for i in nodes} & DEVICE_NODES)
+    if not args.force:
+        if args.topic in COMMAND_TOPICS:
+            raise UsageError(f"{args.topic} is a command topic (its readers move the rig or change "
+                             f"the run); pass --force if you mean it")
+        if devices:
+            raise UsageError(f"graph runs real device nodes ({', '.join(devices)}); "
+                             f"pass --force to publish on it")
+    readers = [i.name for i in nodes if args.topic in i.subscribes or ANY_TOPIC in i.subscribes]
+    kwargs = {"graph_dir": discovery.graph_dir(args.graph)}
+    with _OnePublisher(type(msg), args.topic, **kwargs) as node:
+        if readers and not node.pub.wait_for_subscribers(len(readers), args.wait):
+            print(f"slip topic pub: only {node.pub.subscriber_count()} of {len(readers)} readers "
+                  f"({', '.join(readers)}) subscribed after {args.wait:g} s; publishing anyway",
+                  flush=True)
+        for i in range(args.times):
+            seq = node.pub.publish(msg)
+            print(f"published {type(msg).__name__} seq {seq} on {args.topic}: "
+                  f"{json.dumps(to_plain(msg), default=str)}", flush=True)
+            if i + 1 < args.times:
+                time.sleep(1.0 / args.rate)
+    return 0
+
+
+def register_topic(tsub, graph, guard) -> None:
+    """Adds `info` and `pub` to `slip topic`."""
+    p = tsub.add_parser("info", parents=[graph], help="a topic's type, writers and live readers")
+    p.add_argument("topic", help="e.g. /slip/estimate")
+    p.add_argument("--json", action="store_true", help="one JSON object")
+    p.set_defaults(func=guard(cmd_topic_info))
+    p = tsub.add_parser(
+        "pub", parents=[graph], help="publish a message given as YAML (validated by the contract)",
+        description="Publishes one message on TOPIC from a YAML mapping of its fields (the rest "
+        "keep their defaults; stamp and seq are set on sending), once every live reader has "
+        "subscribed. Command topics (" + ", ".join(sorted(COMMAND_TOPICS)) + ") and any topic "
+        "of a graph with real device nodes are refused without --force.")
+    p.add_argument("topic", help="e.g. /sim/truth")
+    p.add_argument("message", nargs="?", default="", help="YAML, e.g. '{stick_ratio: 0.3, valid: true}'")
+    p.add_argument("--times", type=int, default=1, metavar="N", help="publish N times (default 1)")
+    p.add_argument("--rate", type=float, default=1.0, metavar="HZ", help="with --times: rate (default 1 Hz)")
+    p.add_argument("--wait", type=float, default=3.0, metavar="S",
+                   help="wait at most S s for the readers to subscribe (default 3)")
+    p.add_argument("--force", action="store_true", help="publish on a command topic or on hardware")
+    p.set_defaults(func=guard(cmd_topic_pub))
+
+
+def register_node(subparsers, graph, guard) -> None:
+    """Adds `slip node list|info`."""
+    node = subparsers.add_parser("node", help="the nodes of a running graph")
+    nsub = node.add_subparsers(dest="tool", metavar="TOOL", required=True)
+    p = nsub.add_parser("list", parents=[graph], help="running nodes (name, pid)")
+    p.add_argument("--json", action="store_true", help="one JSON list with each node's topics")
+    p.set_defaults(func=guard(cmd_node_list))
+    p = nsub.add_parser("info", parents=[graph], help="a node's pid, endpoint, publications "
+                        "and subscriptions")
+    p.add_argument("node", help="node name, e.g. estimator")
+    p.add_argument("--json", action="store_true", help="one JSON object per process of that name")
+    p.set_defaults(func=guard(cmd_node_info))

@@ -1,0 +1,137 @@
+"""The viewer bridge: every topic of the graph, live, to Foxglove or Lichtblick (read-only).
+
+    launch stabilize.yaml view:=foxglove       # in a launch
+    slip view [--port 8765] [--graph NAME]      # attached to a graph already running
+
+Connect the viewer to ws://127.0.0.1:8765 (docs/tools.md, "Live view"). The protocol has no
+authentication: the bridge binds the loopback address unless `host` says otherwise, and then
+prints a warning. It only reads the graph; the server refuses client publishing, parameters and
+services (graph/live_view.py). Needs the `[view]` extra (foxglove-sdk).
+"""
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+import time
+
+from incipient_slip.errors import EXIT_USAGE, UsageError
+from incipient_slip.graph import discovery
+from incipient_slip.graph.bag_export import AUDIO_RATE_HZ
+from incipient_slip.graph.live_view import EXTRA_HINT, LiveView, is_loopback
+from incipient_slip.graph.params import Param
+from incipient_slip.graph.runtime import ANY_TOPIC, POLL_S, Node, run_node
+from incipient_slip.messages import PAC_RATE_HZ, Message, MessageError
+
+__all__ = ["FoxgloveBridge", "register"]
+
+
+class FoxgloveBridge(Node):
+    """Serves every topic of the graph as a Foxglove WebSocket channel (JSON + JSON Schema)."""
+
+    PARAMS = {"host": "127.0.0.1", "port": 8765,
+              "backlog": Param(1024, lo=1, help="messages queued per client; the oldest go first"),
+              "audio_rate_hz": Param(AUDIO_RATE_HZ, lo=PAC_RATE_HZ,
+                                     help=f"P_AC audio rate: a multiple of {PAC_RATE_HZ} Hz"),
+              "wait_for_client_s": Param(0.0, lo=0.0, help="hold this node's start (and a launch's "
+                                         "sources) until a viewer subscribes, at most this long"),
+              "priority": Param("low", choices=("idle", "low", "normal"),
+                                help="CPU priority: idle = only CPU time no node wants (SCHED_IDLE), "
+                                     "low = nice 10, normal = as the graph's nodes")}
+    INPUTS = {ANY_TOPIC: Message}       # every topic of the graph, like the recorder
+    OUTPUTS: dict = {}
+
+    def __init__(self, **kwargs):
+        super().__init__("foxglove_bridge", **kwargs)
+        # on a busy machine the loop's nodes get the CPU first; the server's threads, started
+        # below, inherit this policy
+        lower_priority(self.param("priority"))
+        host = self.param("host")
+        if not is_loopback(host):
+            self.warn(f"serving on {host}, not the loopback address: anyone who reaches it sees "
+                      f"the whole graph (the Foxglove WebSocket protocol has no authentication)")
+        self.view = LiveView(host, self.param("port"), backlog=self.param("backlog"),
+                             audio_rate_hz=self.param("audio_rate_hz"))
+        self.on_shutdown(self.view.close)
+        self.log(f"serving ws://{host}:{self.view.port} (read-only)")
+        self.create_raw_subscription(self.on_message)
+        # not 1.0 s: two timers due at once with equal periods make runtime.Timer compare callbacks
+        self.create_timer(0.7, self.offer_announced)
+        self.offer_announced()
+        if self.param("wait_for_client_s") > 0:
+            self.wait_for_client(self.param("wait_for_client_s"))
+
+    def on_message(self, topic: str, body: bytes, recv_ns: int) -> None:
+        try:
+            self.view.forward(topic, body)
+        except MessageError as exc:
+            self.warn(throttle_s=1.0, key=("bridge-drop", topic), text=f"dropped malformed message: {exc}")
+
+    def offer_announced(self) -> None:
+        """Advertises the topics the graph's nodes announce, before their first message."""
+        # Node keeps its graph directory private; _dir is where this node announced itself.
+        for info in discovery.scan(self._dir, clean=False):
+            for topic, type_name in info.publishes.items():
+                self.view.offer(topic, type_name)
+
+    def wait_for_client(self, timeout_s: float) -> None:
+        """Blocks (before this node says hello, so a launch's sources wait too) until a viewer
+        subscribes to a channel, or `timeout_s`: a viewer then sees the run from its start."""
+        deadline = time.monotonic() + timeout_s
+        while not self.view.subscribed.wait(POLL_S) and not self.stopping:
+            self.offer_announced()
+            if time.monotonic() > deadline:
+                self.warn(f"no viewer subscribed within {timeout_s:g} s; going on")
+                return
+
+
+def lower_priority(priority: str) -> None:
+    """Puts this process (its threads started from now on) below the graph's nodes."""
+    if priority == "idle" and hasattr(os, "SCHED_IDLE"):
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+    elif priority in ("idle", "low"):       # no SCHED_IDLE (not Linux): nice is what there is
+        os.nice(10)
+
+
+def main(argv=None):
+    if importlib.util.find_spec("foxglove") is None:
+        print(f"foxglove_bridge: {EXTRA_HINT}", file=sys.stderr)
+        return EXIT_USAGE
+    return run_node(FoxgloveBridge, argv)
+
+
+def cmd_view(args) -> int:
+    """`slip view`: the bridge in the foreground on the graph that is running."""
+    if args.graph:
+        try:
+            directory = discovery.graph_dir(args.graph, create=False)
+        except discovery.GraphNameError as exc:
+            raise UsageError(str(exc)) from None
+        kwargs = {"graph_dir": directory}
+    else:
+        kwargs = {}
+    if importlib.util.find_spec("foxglove") is None:
+        raise UsageError(EXTRA_HINT)
+    return run_node(FoxgloveBridge, [f"host:={args.host}", f"port:={args.port}"], **kwargs)
+
+
+def register(subparsers) -> None:
+    """Adds `slip view` to the `slip` command."""
+    p = subparsers.add_parser(
+        "view", help="serve the running graph to Foxglove/Lichtblick (ws://127.0.0.1:8765)",
+        description="Attaches the viewer bridge to a running graph and serves every topic over "
+                    "the Foxglove WebSocket protocol, read-only, until Ctrl-C. In Foxglove or "
+                    "Lichtblick: Open connection -> Foxglove WebSocket -> ws://127.0.0.1:PORT. "
+                    "The default graph is shared by every process of a user: pass --graph when "
+                    "more than one graph runs.")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to bind (default 127.0.0.1; any other prints a warning: the "
+                        "protocol has no authentication)")
+    p.add_argument("--port", type=int, default=8765, help="TCP port (default 8765; 0 = any free)")
+    p.add_argument("--graph", metavar="NAME", help="graph name (default $SLIP_GRAPH or "
+                   "'default'; $SLIP_GRAPH_DIR overrides the directory)")
+    p.set_defaults(func=cmd_view)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,77 @@
+"""`slip node list|info`, `slip topic info|pub` against a live graph: a probe node in this test
+process, the command as a separate process (as a user runs it)."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from incipient_slip.messages import GripCommand, SimTruth, SlipEstimate
+
+
+def slip(graph, probe, *argv, spin: bool = False):
+    """Runs `slip ARGV` in the graph; spins the probe meanwhile (so it can receive); returns
+    (exit code, stdout, stderr)."""
+    proc = graph.spawn(["python", "-m", "incipient_slip.cli", *argv])
+    if spin:
+        probe.until(lambda: proc.poll() is not None, 60, what=f"slip {' '.join(argv)} to end")
+    out, err = proc.communicate(timeout=60)
+    return proc.returncode, out.decode(), err.decode()
+
+
+def test_node_list_and_info_show_the_running_nodes_and_their_topics(graph, probe):
+    probe.node.create_publisher(GripCommand)
+    probe.listen(SlipEstimate)
+    code, out, err = slip(graph, probe, "node", "list", "--json")
+    assert code == 0, err
+    (node,) = [n for n in json.loads(out) if n["name"] == "probe"]
+    assert node["publishes"] == {"/grip/command": "GripCommand"}
+    assert node["subscribes"] == {"/slip/estimate": "SlipEstimate"}
+    code, out, err = slip(graph, probe, "node", "info", "probe")
+    assert code == 0, err
+    assert "/grip/command: GripCommand" in out and "/slip/estimate: SlipEstimate" in out
+    code, out, err = slip(graph, probe, "node", "info", "nobody")
+    assert code == 2 and "no node 'nobody'" in err
+
+
+def test_topic_info_names_the_writers_and_live_readers(graph, probe):
+    probe.listen(SlipEstimate)
+    code, out, err = slip(graph, probe, "topic", "info", "/slip/estimate", "--json")
+    assert code == 0, err
+    assert json.loads(out) == {"topic": "/slip/estimate", "type": "SlipEstimate", "writers": [],
+                               "readers": ["probe"]}
+
+
+def test_topic_pub_delivers_the_yaml_message_to_a_live_reader(graph, probe):
+    got = probe.listen(SimTruth)
+    code, out, err = slip(graph, probe, "topic", "pub", "/sim/truth",
+                          "{period: 4, stick_ratio: 0.25, gross_slip: true}", spin=True)
+    assert code == 0, err
+    probe.until(lambda: got, what="the published SimTruth")
+    assert (got[0].period, got[0].stick_ratio, got[0].gross_slip) == (4, 0.25, True)
+
+
+@pytest.mark.parametrize("message,words", [("{stick_ratio: 0.3, bogus: 1}", "no field bogus"),
+                                           ("{period: -5}", "period"),
+                                           ("[1, 2]", "YAML mapping")])
+def test_topic_pub_refuses_what_the_contract_refuses_in_one_line(graph, probe, message, words):
+    code, out, err = slip(graph, probe, "topic", "pub", "/sim/truth", message)
+    assert code == 2 and words in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_topic_pub_refuses_a_command_topic_without_force(graph, probe):
+    got = probe.listen(GripCommand)
+    code, out, err = slip(graph, probe, "topic", "pub", "/grip/command", "{normal_force_kpa: 3.0}")
+    assert code == 2 and "command topic" in err and "--force" in err
+    code, out, err = slip(graph, probe, "topic", "pub", "/grip/command", "{normal_force_kpa: 3.0}",
+                          "--force", spin=True)
+    assert code == 0, err
+    probe.until(lambda: got, what="the forced GripCommand")
+    assert got[0].normal_force_kpa == 3.0
+
+
+def test_topic_pub_refuses_any_topic_on_a_graph_with_real_device_nodes(graph, probe):
+    from incipient_slip.graph.runtime import Node
+    with Node("ur5", graph_dir=graph.dir, heartbeat_s=0):          # a device node is running
+        code, out, err = slip(graph, probe, "topic", "pub", "/sim/truth", "{period: 1}")
+    assert code == 2 and "real device nodes (ur5)" in err, err
