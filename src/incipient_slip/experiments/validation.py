@@ -507,8 +507,11 @@ def render_answer(results: dict) -> str:
     the pseudo label's bias by F_N there."""
     pts = dict(results.get("points", {}))
     pts.update({n: p for n, p in (results.get("joint") or {}).get("points", {}).items() if p.get("table")})
+    joint_runs = (results.get("joint") or {}).get("runs")
     lines = ["Simulated rig (v3), not measurements; the paper's protocol (a run stops at the 6 kPa limit or after "
-             f"{results['steps']} steps and is judged on its end state); {results['runs']} runs per method and point."]
+             f"{results['steps']} steps and is judged on its end state); {results['runs']} runs per method at the "
+             "one-at-a-time points" + (f", {joint_runs} at the joint points (named with all three parameters)"
+                                       if joint_runs else "") + "."]
     fitted = pts.get("fitted")
     if fitted and fitted.get("table"):
         t = fitted["table"]
