@@ -392,7 +392,7 @@ def _joint_figure(joint: dict, fig_dir: Path) -> str:
                           [f"beta {b:g}: {LABELS[m].split(' (')[0]}" for b in betas for m in methods], fontsize=6)
     fig.colorbar(im, ax=axes[0].tolist(), label="success rate", shrink=0.8)
     fig.suptitle("SIMULATED RIG: success rate over the joint uncertainty set "
-                 "(hatched: excluded by the open-loop targets T1-T4)", fontsize=9)
+                 "(hatched: excluded by the open-loop targets T1-T4', T7)", fontsize=9)
     name = "validation_joint.png"
     save(fig, fig_dir / name)
     return name
