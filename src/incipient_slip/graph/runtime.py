@@ -36,7 +36,7 @@ import sys
 import time
 import traceback
 import weakref
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
@@ -204,8 +204,9 @@ class Timer:
 
     due: float
     period_s: float
-    callback: Callable[[], Any]
-    cancelled: bool = False
+    # ordered by (due, period) only: two timers due together must not compare their callbacks
+    callback: Callable[[], Any] = field(compare=False)
+    cancelled: bool = field(default=False, compare=False)
 
     def cancel(self) -> None:
         self.cancelled = True
