@@ -16,6 +16,24 @@ FIRMWARE = ROOT / "firmware" / "biotac_bridge"
 CXX = shutil.which("g++") or shutil.which("c++") or shutil.which("clang++")
 
 
+def line_dialogue(exe: Path, check):
+    """Runs `exe` and yields ask(request) -> its answer line; `check(proc, request, answer)` gives
+    (ok, message) for the answer's assertion. The process must exit 0 when its stdin closes."""
+    proc = subprocess.Popen([str(exe)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+
+    def ask(request: str) -> str:
+        proc.stdin.write(request + "\n")
+        proc.stdin.flush()
+        answer = proc.stdout.readline().strip()
+        ok, message = check(proc, request, answer)
+        assert ok, message
+        return answer
+
+    yield ask
+    proc.stdin.close()
+    assert proc.wait(timeout=10) == 0
+
+
 @pytest.fixture(scope="module")
 def host_test(tmp_path_factory):
     """A running host_test process; requests go to its stdin, answers come from its stdout."""
@@ -26,18 +44,8 @@ def host_test(tmp_path_factory):
                             str(FIRMWARE / "test" / "host_test.cpp"), str(FIRMWARE / "biotac_frame.cpp"),
                             "-o", str(exe)], capture_output=True, text=True, timeout=120)
     assert build.returncode == 0, build.stderr
-    proc = subprocess.Popen([str(exe)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-
-    def ask(request: str) -> str:
-        proc.stdin.write(request + "\n")
-        proc.stdin.flush()
-        answer = proc.stdout.readline().strip()
-        assert answer, f"host_test exited (code {proc.poll()}) on {request!r}"
-        return answer
-
-    yield ask
-    proc.stdin.close()
-    assert proc.wait(timeout=10) == 0
+    yield from line_dialogue(exe, lambda proc, request, answer: (
+        answer, f"host_test exited (code {proc.poll()}) on {request!r}"))
 
 
 def test_firmware_schedule_is_the_python_schedule(host_test):
@@ -113,18 +121,8 @@ def sketch(tmp_path):
         pytest.skip("no C++ compiler (g++, c++ or clang++) on PATH: the sketch cannot be built")
     build, exe = build_sketch(tmp_path)
     assert build.returncode == 0, build.stderr
-    proc = subprocess.Popen([str(exe)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-
-    def ask(request: str) -> str:
-        proc.stdin.write(request + "\n")
-        proc.stdin.flush()
-        answer = proc.stdout.readline().strip()
-        assert answer and not answer.startswith("error"), f"sketch_test: {answer!r} on {request!r}"
-        return answer
-
-    yield ask
-    proc.stdin.close()
-    assert proc.wait(timeout=10) == 0
+    yield from line_dialogue(exe, lambda proc, request, answer: (
+        answer and not answer.startswith("error"), f"sketch_test: {answer!r} on {request!r}"))
 
 
 def frames_out(ask) -> list:
