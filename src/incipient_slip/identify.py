@@ -35,6 +35,7 @@ from __future__ import annotations
 import datetime as _dt
 import math
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Generator
 
 import numpy as np
@@ -481,6 +482,96 @@ def overlay(results: dict, protocol: str = "launch identify.yaml", date: str | N
     return doc
 
 
+def figures(results: dict, records: list, out_dir: Path, stem: str = "identify") -> dict:
+    """Draw y against the spring load per F_N level with the fitted lines, and the lag trials'
+    slide onsets against the F_N step; return {protocol: path}."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rig, mat = results["inputs"]["rig"], results["inputs"]["material"]
+    label = f"rig: {rig}; material {mat}" + (" (SIMULATED RIG)" if str(rig).startswith("sim") else "")
+    paths = {}
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for row in results["levels"]:
+        if not row["q_n"]:
+            continue
+        q, y = np.array(row["q_n"]), np.array(row["y_mm"])
+        style = ":" if row["phase"] == "run-in" else "-"
+        line, = ax.plot(q, y - y[0], style, lw=1.2,
+                        label=f"{row['fn_kpa']:.1f} kPa{' run-in' if row['phase'] == 'run-in' else ''}: "
+                              f"k_b {row['k_b']:.3f} N/mm, mu {row['mu']:.3f}")
+        if math.isfinite(row["k_b"]):
+            qq = np.array([0.3 * q.max(), q.max()])
+            m = q >= 0.3 * q.max()
+            c = float(np.mean(y[m] - y[0] - q[m] / row["k_b"]))
+            ax.plot(qq, c + qq / row["k_b"], "k--", lw=0.6)
+        if row["slid"]:
+            ax.plot(q[-1], y[-1] - y[0], "x", color=line.get_color())
+    st = results["stiffness"]
+    if "beta" in st:
+        ax.set_title(f"pre-slip: k_b = {st['k_ref']:.3f} N/mm (F/1 N)^{st['beta']:.2f}; x = slide onset", fontsize=9)
+    ax.set_xlabel("spring load Q = k_s (u - y) [N]")
+    ax.set_ylabel("object travel from zero load [mm]")
+    ax.legend(fontsize=7)
+    fig.text(0.01, -0.03, label, fontsize=7)
+    p = out_dir / f"{stem}_stiffness.png"
+    fig.savefig(p, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    paths["stiffness"] = str(p)
+
+    lag_recs = [r for r in records if r.phase in ("lag-hold", "lag-low", "lag-release")]
+    if lag_recs:
+        fig, (a1, a2) = plt.subplots(2, 1, figsize=(7, 4.5), sharex=True)
+        trials = sorted({r.trial for r in lag_recs})
+        for t in trials:
+            rs = [r for r in lag_recs if r.trial == t]
+            k0 = next((r.period for r in rs if r.phase == "lag-low"), rs[0].period)
+            x = [(r.period - k0) * PERIOD_S for r in rs]
+            row = next((x for x in results["lag_trials"] if x["trial"] == t), {})
+            a1.step(x, [r.fn_kpa for r in rs], where="post", lw=1)
+            a2.plot(x, [r.y_mm - rs[0].y_mm for r in rs], "-o", ms=2, lw=1, label=f"r = {row.get('r', math.nan):.2f}")
+        a1.set_ylabel("F_N [kPa]")
+        a2.set_ylabel("y - y(step) [mm]")
+        a2.set_xlabel("time after the F_N step down [s]")
+        lag = results["lag"]
+        if lag:
+            a1.set_title(f"friction-limit response: tau = {lag['tau_s']:.2f} s "
+                         f"[{lag['tau_interval'][0]:.2f}, {lag['tau_interval'][1]:.2f}]", fontsize=9)
+        a2.legend(fontsize=7)
+        fig.text(0.01, -0.03, label, fontsize=7)
+        p = out_dir / f"{stem}_lag.png"
+        fig.savefig(p, dpi=110, bbox_inches="tight")
+        plt.close(fig)
+        paths["lag"] = str(p)
+    return paths
+
+
+def write_outputs(results: dict, records: list[Record], out_dir, protocol: str = "launch identify.yaml") -> dict:
+    """Write results JSON (with every period), the params overlay YAML and the pictures into
+    out_dir; return {what: path}. A picture that cannot be drawn is reported, never loses data."""
+    import json
+
+    import yaml
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = {"results": out_dir / "identify_results.json", "overlay": out_dir / "identify_overlay.yaml"}
+    doc = {**results, "records": [asdict(r) for r in records]}
+    paths["results"].write_text(json.dumps(doc, indent=1, default=float))
+    ov = overlay(results, protocol)
+    header = ("# Params overlay of an identified rig (docs/identification.md): only the identified parameters,\n"
+              "# each with its 95 % interval; use it with --params (slip reproduce validation --params FILE).\n")
+    paths["overlay"].write_text(header + yaml.safe_dump(ov, sort_keys=False))
+    try:
+        paths.update(figures(results, records, out_dir))
+    except Exception as exc:     # a figure never costs the measurements
+        paths["figure_error"] = f"pictures not drawn: {exc}"
+    return {k: str(v) for k, v in paths.items()}
+
+
 def plan_from_dict(values: dict) -> Plan:
     """Return a Plan from {field: value} (launch params); unknown names are an error."""
     known = {f for f in Plan.__dataclass_fields__}
@@ -492,4 +583,4 @@ def plan_from_dict(values: dict) -> Plan:
 
 
 __all__ = ["Command", "IdentificationError", "Inputs", "Observation", "Plan", "Record", "analyze", "overlay",
-           "plan_from_dict", "read_period", "run_protocol"]
+           "plan_from_dict", "read_period", "run_protocol", "write_outputs"]
