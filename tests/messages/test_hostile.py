@@ -213,8 +213,8 @@ def test_construction_refuses_lossy_conversions_and_overflow():
         M.BiotacPac(pac_counts=[40000] * 22)
     with pytest.raises(M.MessageError, match="pac_counts"):
         M.BiotacPac(pac_counts=["1"] * 22)
-    with pytest.raises(M.MessageError, match="move_mm"):
-        M.ActuatorCommand(move_mm=10 ** 400)
+    with pytest.raises(M.MessageError, match="position_mm"):
+        M.ActuatorCommand(position_mm=10 ** 400)
     assert M.BiotacPac(pac_counts=[2.0] * 22).pac_counts.tolist() == [2] * 22
 
 
