@@ -80,6 +80,7 @@ class Plan:
 
     levels_kpa: tuple = (5.9, 4.7, 3.5, 2.3, 1.1)
     step_mm: float = 0.1                 # actuator step per period on a ramp
+    slide_rise_mm: float = 0.02          # a ramp slid when y rises this much above its stuck steps
     settle_periods: int = 6              # periods at a new F_N before a ramp starts
     max_travel_mm: float = 48.0          # the actuator never goes past this (stage limit)
     unload_periods: int = 4              # periods the actuator follows the object back to zero load
@@ -102,6 +103,8 @@ class Plan:
                 raise IdentificationError(f"every F_N of the plan must be in (0, {limit}] kPa, got {f}")
         if len(self.levels_kpa) < 2 and "stiffness" in self.protocols:
             raise IdentificationError("the stiffness protocol needs at least two F_N levels (beta)")
+        if not 0 < self.slide_rise_mm <= 1.0:
+            raise IdentificationError(f"slide_rise_mm must be in (0, 1], got {self.slide_rise_mm}")
         if not 0 < self.step_mm <= 1.0:
             raise IdentificationError(f"step_mm must be in (0, 1], got {self.step_mm}")
         if not self.lag_low_kpa < self.lag_high_kpa:
@@ -150,6 +153,7 @@ class Record:
     travel_mm: float     # the paper's rule: travel within the period
     rise_mm: float       # y's rise since the previous period's second half
     slid: bool           # the paper's rule fired
+    onset: bool = False  # the protocol ended a ramp here: the slide's first period
 
 
 def read_period(obs: Observation, prev_y: float | None) -> tuple[float, float, float]:
@@ -171,16 +175,17 @@ def read_period(obs: Observation, prev_y: float | None) -> tuple[float, float, f
 Protocol = Generator[Command, Observation, None]
 
 
-def ramp_slid(ramp: list[Record], i: int = -1) -> bool:
-    """Period i of a ramp (constant F_N, one actuator step per period) slid: the paper's rule, or
-    y rose 0.02 mm more than the ramp's stuck steps raise it (the median of the previous five
-    rises: on a soft pad a step alone raises y by up to ~0.02 mm)."""
-    i = i % len(ramp)
-    rec = ramp[i]
+def ramp_slid(ramp: list[Record], rise_mm: float = labels.GROSS_SLIP_MM) -> bool:
+    """The last period of a ramp (constant F_N, one actuator step per period) slid: the paper's
+    rule, or y rose `rise_mm` more than the ramp's stuck steps raise it (the median of the
+    previous five rises: on a soft pad a step alone raises y by up to ~0.02 mm). On a real-time
+    rig the robot's press loop moves F_N a little every period and y with it, so the rise test
+    needs a wider margin there (Plan.slide_rise_mm, docs/identification.md)."""
+    rec = ramp[-1]
     if rec.slid:
         return True
-    before = [r.rise_mm for r in ramp[max(0, i - 5):i]]
-    return len(before) >= 3 and rec.rise_mm - float(np.median(before)) >= labels.GROSS_SLIP_MM
+    before = [r.rise_mm for r in ramp[-6:-1]]
+    return len(before) >= 3 and rec.rise_mm - float(np.median(before)) >= rise_mm
 
 
 def run_protocol(plan: Plan, inputs: Inputs, records: list[Record]) -> Protocol:
@@ -220,10 +225,11 @@ def run_protocol(plan: Plan, inputs: Inputs, records: list[Record]) -> Protocol:
             ramp: list[Record] = []
             while True:
                 ramp.append((yield from period(fn, u, phase, trial)))
-                if ramp_slid(ramp) or u >= plan.max_travel_mm:
+                if ramp_slid(ramp, plan.slide_rise_mm) or u >= plan.max_travel_mm:
                     break
                 u = min(u + plan.step_mm, plan.max_travel_mm)
-            if ramp_slid(ramp) and len(ramp) >= 2:
+            if ramp_slid(ramp, plan.slide_rise_mm) and len(ramp) >= 2:
+                ramp[-1].onset = True
                 prev = ramp[-2]
                 mu_onsets.append(ks * (prev.u_mm - prev.y_mm) / (fn * inputs.newton_per_kpa))
             u = yield from unload(fn, u, trial)
@@ -286,7 +292,7 @@ def stiffness_levels(records: list[Record], inputs: Inputs) -> list[dict]:
     ks, gain = inputs.spring_n_per_mm, inputs.newton_per_kpa
     rows = []
     for trial, recs in sorted(_trials(records, ("ramp", "run-in")).items()):
-        end = next((i for i in range(len(recs)) if ramp_slid(recs, i)), None)
+        end = next((i for i, r in enumerate(recs) if r.onset), None)
         stuck, slid = (recs, []) if end is None else (recs[:end], recs[end:])
         fn = float(np.median([r.fn_kpa for r in recs]))
         row = {"trial": trial, "phase": recs[0].phase, "fn_kpa": fn, "fn_n": fn * gain, "periods": len(recs),

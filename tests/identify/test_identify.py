@@ -163,7 +163,34 @@ def test_launch_identify_recovers_hidden_parameters_through_the_graph(graph, tmp
     assert (out / "identify_stiffness.png").is_file() and (out / "identify_results.json").is_file()
 
 
-def test_the_identifier_refuses_rigs_it_cannot_drive_yet(graph):
-    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.identifier", "rig:=hardware"])
+def test_the_identifier_refuses_a_plan_above_the_safety_limit_before_anything_moves(graph):
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.identifier", "levels_kpa:=7.5,2.0"])
     _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 2 and b"commanded mode" in err
+    assert proc.returncode == 2 and b"F_N of the plan" in err
+
+
+@pytest.mark.slow
+def test_launch_identify_through_the_emulated_devices_recovers_one_hidden_set(graph, tmp_path):
+    """rig:=emulated: the real device nodes (BioTac reader, mocap bridge, Zaber stage in commanded
+    mode, UR5 pressing on P_DC) against the emulators around one simulated contact, in real time.
+    Two levels, stiffness only (a real-time period takes ~1 s); the press loop's F_N ripple is the
+    extra noise, so the tolerances are the stated ones without the graph test's margin."""
+    materials = load_params("default")[0]["materials"]
+    scene = tmp_path / "hidden.yaml"
+    scene.write_text(yaml.safe_dump({
+        "name": "hidden", "params": "default",
+        "effects": ["contact", "stick_slip", "mocap", "pdc", "temperature", "electrodes", "adc"],
+        "overrides": {"pre_slip": {"bulk_shear_n_per_mm": 0.58, "bulk_stiffening_exponent": 0.85},
+                      "materials": {"pla": {**materials["pla"], "mu_identified": 0.48}}}}))
+    out = tmp_path / "out"
+    emu = tmp_path / "emu"
+    done = graph.spawn([sys.executable, "-m", "incipient_slip.graph.launch", str(LAUNCH), "rig:=emulated",
+                        f"scene:={scene}", f"out_dir:={out}", f"emu_dir:={emu}", "emu_natnet_port:=41560",
+                        "levels_kpa:=2.3,1.1", "step_mm:=0.5", "protocols:=stiffness"])
+    stdout, stderr = done.communicate(timeout=900)
+    assert done.returncode == 0, stderr.decode()[-3000:]
+    doc = load_overlay(out / "identify_overlay.yaml")
+    assert doc["provenance"]["rig"] == "emulated"
+    assert doc["pre_slip"]["bulk_shear_n_per_mm"]["value"] == pytest.approx(0.58, rel=0.10)
+    assert doc["pre_slip"]["bulk_stiffening_exponent"]["value"] == pytest.approx(0.85, abs=0.15)
+    assert doc["materials"]["pla"]["mu_identified"]["value"] == pytest.approx(0.48, rel=0.10)

@@ -192,9 +192,10 @@ def overlay_points(doc: dict) -> dict[str, dict]:
 
 def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int, seed: int, work: str,
                sweep_runs: int = 0, refits=None, fit: dict | None = None, fig_dir: str | None = None,
-               params: dict | None = None) -> dict:
+               params: dict | None = None, materials: tuple | None = None) -> dict:
     """Return everything of one point: its stage-1 refit (`fit` when already done), model scores and
-    the Table's runs. With `params` (an identified rig's) there is no refit: the rig's own values."""
+    the Table's runs. With `params` (an identified rig's) there is no refit: the rig's own values,
+    and the Table runs on `materials` (the identified ones) only."""
     from incipient_slip.sim.rig import series_seed
     from incipient_slip.sim.scene import load_scene
     from incipient_slip.models.estimator_core import limit_blas_threads
@@ -221,7 +222,7 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
         dirs[sname] = out
     study = run_study(dirs, quick=True, max_train=2000, grid_max=600, progress=False)
     models = {m: r.model for m, r in study.results.items()}
-    mats = scene.materials
+    mats = tuple(materials) if materials else scene.materials
     table = {}
     for method in TABLE_METHODS + ("oracle",):
         table[method] = [closed_loop(method, scene.params, mats[j % len(mats)], series_seed(seed + 2, j),
@@ -274,7 +275,7 @@ def run(settings) -> dict:
         except (OSError, ValueError) as e:
             raise UsageError(f"--keep {keep}: {e}") from None
     work = Path(settings.work) / "data"
-    rig_points, provenance = {}, None
+    rig_points, provenance, rig_materials = {}, None, None
     if opt("params"):
         from incipient_slip.sim.scene import SceneError, load_overlay
         if settings.docs is not None:
@@ -287,6 +288,7 @@ def run(settings) -> dict:
         except SceneError as exc:
             raise UsageError(str(exc)) from None
         provenance = doc["provenance"]
+        rig_materials = tuple(doc.get("materials", {})) or None   # the Table on the identified object(s)
         names = list(rig_points)
     grid = joint_points()
     sweep_at = opt("sweep_at") or []
@@ -303,7 +305,8 @@ def run(settings) -> dict:
             sweep = 0 if name in grid else opt("sweep_runs", 0)
         return client.submit(point_task, name, overrides, runs, n_series, steps, settings.seed, str(work),
                              sweep, opt("refits"), fit, str(settings.figures) if settings.figures else None,
-                             rig_points.get(name), key=f"validation-{_slug(name)}-{settings.seed}-sweep{sweep}",
+                             rig_points.get(name), rig_materials,
+                             key=f"validation-{_slug(name)}-{settings.seed}-sweep{sweep}",
                              pure=False)
 
     done, joint_done, refit_only = {}, {}, {}
@@ -464,8 +467,9 @@ def trajectory_figure(params: dict, models: dict, material: str, seed: int, fig_
 
 
 def _outcome(t: dict) -> str:
-    """A method's cell: success rate (mean final y, mean final F_N)."""
-    return f"{t['success']:.1f} ({t['y']:.2f} mm, {t['fn']:.1f} kPa)"
+    """A method's cell: success rate (mean final y, mean final F_N); no action has no rate."""
+    rate = "-" if t["success"] is None else f"{t['success']:.1f}"
+    return f"{rate} ({t['y']:.2f} mm, {t['fn']:.1f} kPa)"
 
 
 def _cell(v, fmt="{:.2f}") -> str:

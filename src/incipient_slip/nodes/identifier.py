@@ -2,11 +2,16 @@
 
     python -m incipient_slip.nodes.identifier out_dir:=runs/identify spring_n_per_mm:=0.0327
 
-Each period ends at the rig's tick (`/actuator/state`, step k); once its mocap samples are in
-(`/object/pose`, stamps in [k T, (k+1) T)), the period's `Observation` (F_N applied from
-`/robot/state`, the actuator's position, y) goes to the protocol, and its answer goes out as
-`ActuatorCommand(period=k)` (an absolute position) and `GripCommand(period=k)` (the F_N), which
-the rig applies from period k+1 (rig_sim `protocol:=commanded` in lock-step waits for both).
+Two period clocks. `clock: tick_end` (rig_sim `protocol:=commanded`, lock-step): period k ends at
+the rig's tick k (`/actuator/state`); once its mocap samples are in (`/object/pose`, stamps in
+[k T, (k+1) T)) the period's `Observation` (F_N applied from `/robot/state`, the actuator's
+position, y) goes to the protocol, and its answer goes out as `ActuatorCommand(period=k)` (a
+position from the zero-load origin) and `GripCommand(period=k)`, which the rig applies from
+period k+1 (it waits for both). `clock: tick_start` (device nodes, real time; linear_actuator
+`mode:=commanded`): the identifier sends period k's commands, the stage's tick k says the move is
+done, and the period is the window [tick + settle_s, tick + settle_s + T) of host-time stamps (the
+pad, the robot's press and an emulated rig's own 500 ms step settle first); then period k+1's
+commands go out. `actuator_origin_mm` is the stage position of zero spring load (start_mm).
 When the protocols end it writes `identify_results.json` (every period), `identify_overlay.yaml`
 (the params overlay) and one picture per protocol into `out_dir`, and exits 0. Interrupted
 (SIGINT/SIGTERM) it first commands zero spring load (the actuator onto the object) and writes what
@@ -46,12 +51,17 @@ class Identifier(Node):
         "gain_rel_sd": Param(0.1, lo=0.0, hi=0.99, help="its relative standard uncertainty"),
         "levels_kpa": Param("5.9,4.7,3.5,2.3,1.1", help="F_N levels of the stiffness ramps, highest first (kPa, comma-separated)"),
         "step_mm": Param(0.1, lo=1e-3, hi=1.0, help="actuator step per period on a ramp (mm)"),
+        "slide_rise_mm": Param(0.02, lo=1e-3, hi=1.0, help="a ramp slid when y rises this much above its stuck steps (mm)"),
         "max_travel_mm": Param(48.0, lo=0.0, hi=50.0, help="the actuator never goes past this (mm)"),
         "protocols": Param("stiffness,lag,no_action", help="which protocols to run, in this order (comma-separated)"),
         "no_action_steps": Param(450, lo=1, help="steps of the no-action check (paper: 450)"),
         "mocap_rate_hz": Param(120.0, lo=1.0, help="a period is complete with 90 % of its mocap samples"),
         "silence_timeout_s": Param(60.0, lo=0.1, help="liveness: no tick or mocap this long is a fault (s)"),
-        "lockstep": Param(True, help="true: the rig waits for each command (rig_sim lock-step)"),
+        "clock": Param("tick_end", choices=("tick_end", "tick_start"),
+                       help="tick_end: rig_sim lock-step; tick_start: device nodes in real time"),
+        "settle_s": Param(0.5, lo=0.0, hi=10.0, help="tick_start: wait this long after a move before the period's window (s)"),
+        "actuator_origin_mm": Param(0.0, lo=-1000.0, hi=1000.0, help="stage position at zero spring load (mm)"),
+        "wait_timeout_s": Param(300.0, lo=0.0, help="tick_start: the first command waits for the readers at most this long (s)"),
     }
 
     def __init__(self, **kwargs):
@@ -60,6 +70,7 @@ class Identifier(Node):
         try:
             self.plan = identify.Plan(levels_kpa=tuple(float(x) for x in str(p("levels_kpa")).split(",")),
                                       step_mm=p("step_mm"), max_travel_mm=p("max_travel_mm"),
+                                      slide_rise_mm=p("slide_rise_mm"),
                                       protocols=tuple(x.strip() for x in str(p("protocols")).split(",")),
                                       no_action_steps=p("no_action_steps"))
             self.inputs = identify.Inputs(spring_n_per_mm=p("spring_n_per_mm"), spring_rel_sd=p("spring_rel_sd"),
@@ -69,9 +80,6 @@ class Identifier(Node):
             self.inputs.check()
         except (identify.IdentificationError, TypeError, ValueError) as exc:
             raise ParamError(f"node {self.name!r}: {exc}") from None
-        if p("rig") != "sim":
-            raise ParamError(f"node {self.name!r}: rig:={p('rig')} is not supported yet: the linear actuator "
-                             "node has no commanded mode (docs/identification.md, 'Rigs'); use rig:=sim")
         self.records: list[identify.Record] = []
         self.protocol = identify.run_protocol(self.plan, self.inputs, self.records)
         self.command = next(self.protocol)          # for period 0, which the rig runs at its own start
@@ -86,8 +94,23 @@ class Identifier(Node):
         self.next_period = 0
         self.last_news = time.monotonic()
         self.finished = False
+        self.real_time = p("clock") == "tick_start"
+        self.window_start: dict[int, int] = {}       # tick_start: period -> first stamp of its window
         self.on_shutdown(self.finish)
         self.create_timer(0.5, self.check_liveness)
+        if self.real_time:
+            self.started = False
+            self.create_timer(0.05, self.start)
+
+    def start(self) -> None:
+        """tick_start: send period 0's commands once the readers the launch names are subscribed."""
+        if self.started:
+            return
+        self.started = True
+        if self.readers:
+            self.wait_for_readers(self.param("wait_timeout_s"))
+        self.last_news = time.monotonic()
+        self.publish(self.command, 0)
 
     def on_pose(self, msg: ObjectPose) -> None:
         self.poses.append((msg.stamp_ns, msg.travel_mm))
@@ -98,7 +121,9 @@ class Identifier(Node):
         self.forces.append((msg.stamp_ns, msg.normal_force_kpa))
 
     def on_tick(self, msg: ActuatorState) -> None:
-        self.ticks[msg.step_index] = msg.position_mm
+        self.ticks[msg.step_index] = msg.position_mm - self.param("actuator_origin_mm")
+        if self.real_time:
+            self.window_start[msg.step_index] = msg.stamp_ns + int(self.param("settle_s") * 1e9)
         self.last_news = time.monotonic()
         self.try_period()
 
@@ -107,7 +132,8 @@ class Identifier(Node):
         need = 0.9 * self.param("mocap_rate_hz") * T_S
         while self.next_period in self.ticks and not self.finished:
             k = self.next_period
-            lo, hi = k * PERIOD_NS, (k + 1) * PERIOD_NS
+            lo = self.window_start[k] if self.real_time else k * PERIOD_NS
+            hi = lo + PERIOD_NS
             inside = [(s, y) for s, y in self.poses if lo <= s < hi]
             later = any(s >= hi for s, _ in self.poses)
             if len(inside) < need and not later:
@@ -129,7 +155,7 @@ class Identifier(Node):
                 self.warn(f"period {k}: {exc}")
                 self.shutdown("bad measurement", EXIT_FAULT)
                 return
-            self.publish(self.command, k)
+            self.publish(self.command, k + 1 if self.real_time else k)
 
     def publish(self, cmd: identify.Command, k: int) -> None:
         self.actuator_pub.publish(ActuatorCommand(position_mm=cmd.actuator_mm, period=k))
@@ -149,7 +175,7 @@ class Identifier(Node):
         if self.records and self.next_period > 0:
             last = self.records[-1]
             self.publish(identify.Command(last.fn_kpa, max(0.0, min(last.y_mm, self.plan.max_travel_mm)),
-                                          "unload", -1), self.next_period - 1)
+                                          "unload", -1), self.next_period + 1 if self.real_time else self.next_period - 1)
         if not self.records:
             return
         try:
