@@ -405,8 +405,15 @@ def lag_trials(records: list[Record], inputs: Inputs, stiff: dict) -> list[dict]
         else:
             q = q_hold
         r = (q / mu - f_lo) / (f_hi - f_lo)
-        onset = next((i + 1 for i, rec in enumerate(low) if rec.slid), None)
-        row = {"trial": trial, "q_n": q, "r": r, "onset_period": onset, "tau_interval": None,
+        # time the onset against the P_DC step (the F_N applied reaching 90 % of the step), not the
+        # command: a robot's press loop takes its own time to unload the finger
+        target = low[0].fn_kpa if len(low) == 1 else min(r.fn_kpa for r in low)
+        hi_kpa = hold[-1].fn_kpa
+        step_at = next((i for i, rec in enumerate(low) if rec.fn_kpa <= target + 0.1 * (hi_kpa - target)), 0)
+        slide_at = next((i for i, rec in enumerate(low) if rec.slid), None)
+        onset = None if slide_at is None else max(1, slide_at - step_at + 1)
+        row = {"trial": trial, "q_n": q, "r": r, "onset_period": onset, "pdc_step_period": step_at + 1,
+               "tau_interval": None,
                "slide_end_periods": next((i + 1 for i, rec in enumerate(release) if not rec.slid), None)}
         if onset is not None and 0 < r < 1:
             lr = -math.log(r)
