@@ -529,11 +529,7 @@ def figures(results: dict, records: list, out_dir: Path, stem: str = "identify")
     ax.set_xlabel("spring load Q = k_s (u - y) [N]")
     ax.set_ylabel("object travel from zero load [mm]")
     ax.legend(fontsize=7)
-    fig.text(0.01, -0.03, label, fontsize=7)
-    p = out_dir / f"{stem}_stiffness.png"
-    fig.savefig(p, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    paths["stiffness"] = str(p)
+    paths["stiffness"] = _save(plt, fig, out_dir / f"{stem}_stiffness.png", label)
 
     lag_recs = [r for r in records if r.phase in ("lag-hold", "lag-low", "lag-release")]
     if lag_recs:
@@ -543,7 +539,7 @@ def figures(results: dict, records: list, out_dir: Path, stem: str = "identify")
             rs = [r for r in lag_recs if r.trial == t]
             k0 = next((r.period for r in rs if r.phase == "lag-low"), rs[0].period)
             x = [(r.period - k0) * PERIOD_S for r in rs]
-            row = next((x for x in results["lag_trials"] if x["trial"] == t), {})
+            row = next((lt for lt in results["lag_trials"] if lt["trial"] == t), {})
             a1.step(x, [r.fn_kpa for r in rs], where="post", lw=1)
             a2.plot(x, [r.y_mm - rs[0].y_mm for r in rs], "-o", ms=2, lw=1, label=f"r = {row.get('r', math.nan):.2f}")
         a1.set_ylabel("F_N [kPa]")
@@ -554,12 +550,16 @@ def figures(results: dict, records: list, out_dir: Path, stem: str = "identify")
             a1.set_title(f"friction-limit response: tau = {lag['tau_s']:.2f} s "
                          f"[{lag['tau_interval'][0]:.2f}, {lag['tau_interval'][1]:.2f}]", fontsize=9)
         a2.legend(fontsize=7)
-        fig.text(0.01, -0.03, label, fontsize=7)
-        p = out_dir / f"{stem}_lag.png"
-        fig.savefig(p, dpi=110, bbox_inches="tight")
-        plt.close(fig)
-        paths["lag"] = str(p)
+        paths["lag"] = _save(plt, fig, out_dir / f"{stem}_lag.png", label)
     return paths
+
+
+def _save(plt, fig, path: Path, label: str) -> str:
+    """Label a picture with the rig it came from, write it and close it."""
+    fig.text(0.01, -0.03, label, fontsize=7)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return str(path)
 
 
 def write_outputs(results: dict, records: list[Record], out_dir, protocol: str = "launch identify.yaml") -> dict:
