@@ -85,7 +85,7 @@ class Plan:
     max_travel_mm: float = 48.0          # the actuator never goes past this (stage limit)
     unload_periods: int = 4              # periods the actuator follows the object back to zero load
     lag_high_kpa: float = 5.9
-    lag_low_kpa: float = 1.1
+    lag_low_kpa: float = 2.3              # the slide it lets go is r mu (F_hi - F_lo) / k_s: <= ~7 mm
     lag_fractions: tuple = (0.08, 0.12, 0.2, 0.35)   # where Q/mu sits between F_lo (0) and F_hi (1)
     lag_load_step_mm: float = 1.0        # fast ramp of the lag trials (far below their friction limit)
     lag_max_periods: int = 16            # periods at F_lo waiting for the slide

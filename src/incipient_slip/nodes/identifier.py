@@ -11,7 +11,8 @@ period k+1 (it waits for both). `clock: tick_start` (device nodes, real time; li
 `mode:=commanded`): the identifier sends period k's commands, the stage's tick k says the move is
 done, and the period is the window [tick + settle_s, tick + settle_s + T) of host-time stamps (the
 pad, the robot's press and an emulated rig's own 500 ms step settle first); then period k+1's
-commands go out. `actuator_origin_mm` is the stage position of zero spring load (start_mm).
+commands go out; a window with under half its mocap samples (a hole in the stream) is observed
+again over the next T, counted (a fault after `max_window_retries`). `actuator_origin_mm` is the stage position of zero spring load (start_mm).
 When the protocols end it writes `identify_results.json` (every period), `identify_overlay.yaml`
 (the params overlay) and one picture per protocol into `out_dir`, and exits 0. Interrupted
 (SIGINT/SIGTERM) it first commands zero spring load (the actuator onto the object) and writes what
@@ -61,6 +62,7 @@ class Identifier(Node):
                        help="tick_end: rig_sim lock-step; tick_start: device nodes in real time"),
         "settle_s": Param(0.5, lo=0.0, hi=10.0, help="tick_start: wait this long after a move before the period's window (s)"),
         "actuator_origin_mm": Param(0.0, lo=-1000.0, hi=1000.0, help="stage position at zero spring load (mm)"),
+        "max_window_retries": Param(20, lo=0, help="tick_start: windows re-observed after mocap holes before a fault"),
         "wait_timeout_s": Param(300.0, lo=0.0, help="tick_start: the first command waits for the readers at most this long (s)"),
     }
 
@@ -96,6 +98,7 @@ class Identifier(Node):
         self.finished = False
         self.real_time = p("clock") == "tick_start"
         self.window_start: dict[int, int] = {}       # tick_start: period -> first stamp of its window
+        self.windows_retried = 0
         self.on_shutdown(self.finish)
         self.create_timer(0.5, self.check_liveness)
         if self.real_time:
@@ -138,6 +141,20 @@ class Identifier(Node):
             later = any(s >= hi for s, _ in self.poses)
             if len(inside) < need and not later:
                 return
+            if len(inside) < 0.5 * need and self.real_time:
+                # a hole in the mocap stream (a loaded host, a lost marker): observe the same
+                # state over the next window instead of reading a period from a few samples
+                self.windows_retried += 1
+                if self.windows_retried > self.param("max_window_retries"):
+                    self.warn(f"period {k}: {len(inside)} mocap samples in its window, "
+                              f"{self.windows_retried - 1} windows retried; giving up")
+                    self.shutdown("mocap missing", EXIT_FAULT)
+                    return
+                self.warn(f"period {k}: only {len(inside)} mocap samples in its window; observing the "
+                          f"next {T_S:g} s instead ({self.windows_retried} retried so far)", throttle_s=1.0)
+                self.window_start[k] = hi
+                self.poses = [(s, y) for s, y in self.poses if s >= hi]
+                continue
             self.poses = [(s, y) for s, y in self.poses if s >= hi]
             force = [f for s, f in self.forces if s < hi]
             self.forces = [(s, f) for s, f in self.forces if s >= lo]
