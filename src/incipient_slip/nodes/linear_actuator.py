@@ -19,7 +19,8 @@ step and tick come one period later.
 `ActuatorCommand(period=k)` moves the stage to `start_mm + position_mm` (clamped to the limits,
 with a warning) and publishes `ActuatorState(step_index=k)` once the move is done and read back;
 an older or repeated period is refused and counted. A move may take `move_timeout_s` plus its
-distance at `speed_mm_s`. Commands before the readers and the tare are in wait for them (the
+distance at `speed_mm_s`. On shutdown (the end, Ctrl-C, SIGTERM) it moves back to start_mm, where
+the tension spring is slack, so an interrupted identification leaves the rig unloaded. Commands before the readers and the tare are in wait for them (the
 newest kept).
 
 Safety of its own: a target outside [limit_min_mm, limit_max_mm] is refused; a fault flag (FS
@@ -104,6 +105,8 @@ class LinearActuator(Node):
         self.client = zaber.ZaberClient(port or self._open(), device=p("device"), axis=p("axis"),
                                         microsteps_per_mm=p("microsteps_per_mm"),
                                         timeout_s=p("reply_timeout_s"), name=p("port"))
+        if self.commanded:         # before the port closes
+            self.on_shutdown(self._unload)
         self.on_shutdown(self._close)
         if not self._startup():
             return
@@ -248,6 +251,19 @@ class LinearActuator(Node):
             pass
         self.log(f"linear_actuator: FAULT: {text}; the stage is stopped, the run cannot go on")
         self.shutdown("stage fault", EXIT_FAULT)
+
+    def _unload(self):
+        """Commanded mode ends with the stage at start_mm, where the tension spring is slack: an
+        interrupted identification leaves the rig unloaded whatever its other nodes do."""
+        if self.failed or self.last_period < 0:
+            return
+        try:
+            here = self.client.position_mm()
+            timeout = self.param("move_timeout_s") + abs(here - self.param("start_mm")) / self.param("speed_mm_s")
+            self._move_to(self.param("start_mm"), "the move back to start_mm", timeout)
+            self.log(f"back at start_mm {self.param('start_mm'):g} mm: the spring is slack")
+        except zaber.ZaberError as exc:
+            self.log(f"linear_actuator: could not move back to start_mm: {exc}; the spring may be loaded")
 
     def _close(self):
         self.log(f"steps done {self.k}/{self.steps}; serial {dict(self.client.stats)}")
