@@ -194,3 +194,20 @@ def test_launch_identify_through_the_emulated_devices_recovers_one_hidden_set(gr
     assert doc["pre_slip"]["bulk_shear_n_per_mm"]["value"] == pytest.approx(0.58, rel=0.10)
     assert doc["pre_slip"]["bulk_stiffening_exponent"]["value"] == pytest.approx(0.85, abs=0.15)
     assert doc["materials"]["pla"]["mu_identified"]["value"] == pytest.approx(0.48, rel=0.10)
+
+
+def test_an_overlay_reaches_every_command_that_takes_the_simulators_params(graph, tmp_path):
+    records, results = idn.identify_sim(idn.scene_with(idn.hidden_set(6)), "pla", 6,
+                                        identify.Plan(protocols=("stiffness",)))
+    overlay = identify.write_outputs(results, records, tmp_path)["overlay"]
+    from incipient_slip.sim.scene import load_scene
+    scene = load_scene("paper", overlay)
+    assert scene.params["pre_slip"]["bulk_stiffening_exponent"] == pytest.approx(results["stiffness"]["beta"])
+    assert scene.params["materials"]["pla"]["mu_identified"] == pytest.approx(results["stiffness"]["mu"])
+    bad = subprocess.run([sys.executable, "-m", "incipient_slip.cli", "dataset", "--scene", "mechanics", "--params",
+                          str(tmp_path / "missing.yaml"), "--series", "1", "--out", str(tmp_path / "d")],
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "params overlay not found" in bad.stderr
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.rig_sim", f"params:={tmp_path / 'x.yaml'}"])
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2 and b"params overlay not found" in err

@@ -85,6 +85,7 @@ class RigSim(Node):
     PARAMS = {
         "scene": Param("paper", help="scene file or name (scenes/)"),
         "material": Param("", help='object material ("": the scene\'s first)'),
+        "params": Param("", help="an identified rig's params overlay on the scene (docs/identification.md)"),
         "seed": Param(0, lo=0, help="the rig's seed"),
         "protocol": Param("closed_loop", choices=PROTOCOLS, help="closed_loop: apply /grip/command; collection: the "
                           "data-set forces; commanded: /grip/command and the actuator at /actuator/command"),
@@ -105,7 +106,7 @@ class RigSim(Node):
     def __init__(self, **kwargs):
         super().__init__("rig_sim", **kwargs)
         try:
-            scene = load_scene(self.param("scene"))
+            scene = load_scene(self.param("scene"), self.param("params") or None)
         except SceneError as exc:        # run_node reports a ParamError in one line, exit 2
             raise ParamError(f"node {self.name!r}: parameter 'scene': {exc}") from None
         material = self.param("material") or scene.materials[0]

@@ -216,8 +216,17 @@ def scene_from_dict(doc: dict, where: str = "scene", yaml_text: str = "") -> Sce
                  units=units)
 
 
-def load_scene(name_or_path: str | Path) -> Scene:
-    """Return the Scene named `name_or_path` (scenes/NAME.yaml) or read from that path."""
+def load_scene(name_or_path: str | Path, overlay: str | Path | None = None) -> Scene:
+    """Return the Scene named `name_or_path` (scenes/NAME.yaml) or read from that path; with
+    `overlay`, an identified rig's params overlay applied on top (docs/identification.md)."""
+    scene = _load_scene(name_or_path)
+    if overlay:
+        import dataclasses
+        scene = dataclasses.replace(scene, params=apply_overlay(scene.params, load_overlay(overlay), str(overlay)))
+    return scene
+
+
+def _load_scene(name_or_path: str | Path) -> Scene:
     path = Path(name_or_path)
     if not path.suffix:
         path = scenes_dir() / f"{name_or_path}.yaml"
