@@ -66,7 +66,7 @@ ANY_TOPIC = "*"
 READERS_ENV = "SLIP_READERS"
 # Set by the launcher for each node: JSON {input topic after remaps: [writer node names]}. A node
 # accepts those topics only from those nodes: it does not connect to a node that announces one of
-# them without being its writer (a forged command or state; counted in `refused`, one warning
+# them without being its writer (a forged command or state; counted in `refused_writers`, one warning
 # each). Unset (a node started by hand, a recorder): every publisher is accepted.
 WRITERS_ENV = "SLIP_WRITERS"
 # Each node, once its subscriptions are made, also subscribes HELLO + its name: a subscription no
@@ -264,7 +264,7 @@ class Node:
         self._said_hello = False
         self._readers = _table_from_env(READERS_ENV, self.name) if readers is None else dict(readers)
         self._writers = _table_from_env(WRITERS_ENV, self.name) if writers is None else dict(writers)
-        self.refused: dict[tuple[str, int], str] = {}     # (name, pid) of a refused publisher -> why
+        self.refused_writers: dict[tuple[str, int], str] = {}     # (name, pid) of a refused publisher -> why
         self._log_prefix = "" if os.environ.get("SLIP_LAUNCHED") else f"[{self.name}] "
 
         self._dir = discovery.graph_dir() if graph_dir is None else Path(graph_dir)
@@ -603,11 +603,11 @@ class Node:
         for topic in info.publishes:
             if topic in writers and info.name not in writers[topic]:
                 key = (info.name, info.pid)
-                if key not in self.refused:
-                    self.refused[key] = (f"publisher {info.name} (pid {info.pid}) refused: it "
+                if key not in self.refused_writers:
+                    self.refused_writers[key] = (f"publisher {info.name} (pid {info.pid}) refused: it "
                                          f"announces {topic}, whose writer in this launch is "
                                          f"{' or '.join(writers[topic])}")
-                    self.warn(f"{self.refused[key]} ({len(self.refused)} refused)")
+                    self.warn(f"{self.refused_writers[key]} ({len(self.refused_writers)} refused)")
                 self._refused_endpoints.add(info.endpoint)
                 return False
         if any(info.name in names for names in writers.values()):
