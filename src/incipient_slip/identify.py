@@ -82,6 +82,7 @@ class Plan:
     step_mm: float = 0.1                 # actuator step per period on a ramp
     slide_rise_mm: float = 0.02          # a ramp slid when y rises this much above its stuck steps
     settle_periods: int = 6              # periods at a new F_N before a ramp starts
+    max_rise_kpa: float = 1.0            # F_N rises at most this per period (a press loop overshoots a big step)
     max_travel_mm: float = 48.0          # the actuator never goes past this (stage limit)
     unload_periods: int = 4              # periods the actuator follows the object back to zero load
     lag_high_kpa: float = 5.9
@@ -103,6 +104,8 @@ class Plan:
                 raise IdentificationError(f"every F_N of the plan must be in (0, {limit}] kPa, got {f}")
         if len(self.levels_kpa) < 2 and "stiffness" in self.protocols:
             raise IdentificationError("the stiffness protocol needs at least two F_N levels (beta)")
+        if not (math.isfinite(self.max_rise_kpa) and self.max_rise_kpa > 0):
+            raise IdentificationError(f"max_rise_kpa must be > 0, got {self.max_rise_kpa}")
         if not 0 < self.slide_rise_mm <= 1.0:
             raise IdentificationError(f"slide_rise_mm must be in (0, 1], got {self.slide_rise_mm}")
         if not 0 < self.step_mm <= 1.0:
@@ -194,10 +197,13 @@ def run_protocol(plan: Plan, inputs: Inputs, records: list[Record]) -> Protocol:
     plan.check()
     inputs.check()
     ks = inputs.spring_n_per_mm
-    state = {"y": None}
+    state = {"y": None, "fn": None}
 
     def period(fn: float, u: float, phase: str, trial: int) -> Generator[Command, Observation, Record]:
         fn = min(float(fn), control.SAFETY_LIMIT_KPA)
+        if state["fn"] is not None:                  # down at once (less force), up rate-limited
+            fn = min(fn, state["fn"] + plan.max_rise_kpa)
+        state["fn"] = fn
         u = min(max(float(u), 0.0), plan.max_travel_mm)
         obs = yield Command(fn, u, phase, trial)
         y, travel, rise = read_period(obs, state["y"])
@@ -205,6 +211,14 @@ def run_protocol(plan: Plan, inputs: Inputs, records: list[Record]) -> Protocol:
         rec = Record(obs.period, phase, trial, float(obs.normal_force_kpa), float(obs.actuator_mm), y, travel,
                      rise, travel >= labels.GROSS_SLIP_MM)
         records.append(rec)
+        return rec
+
+    def settle(fn: float, u: float, trial: int) -> Generator[Command, Observation, Record]:
+        """Bring F_N to `fn` (rate-limited) and hold it `settle_periods` periods."""
+        while state["fn"] is None or state["fn"] < min(fn, control.SAFETY_LIMIT_KPA) - 1e-9:
+            yield from period(fn, u, "settle", trial)
+        for _ in range(plan.settle_periods):
+            rec = yield from period(fn, u, "settle", trial)
         return rec
 
     def unload(fn: float, u: float, trial: int) -> Generator[Command, Observation, float]:
@@ -220,8 +234,7 @@ def run_protocol(plan: Plan, inputs: Inputs, records: list[Record]) -> Protocol:
         levels = (plan.levels_kpa[0],) + tuple(plan.levels_kpa)
         for i, fn in enumerate(levels):
             phase = "run-in" if i == 0 else "ramp"
-            for _ in range(plan.settle_periods):
-                yield from period(fn, u, "settle", trial)
+            yield from settle(fn, u, trial)
             ramp: list[Record] = []
             while True:
                 ramp.append((yield from period(fn, u, phase, trial)))
@@ -240,9 +253,7 @@ def run_protocol(plan: Plan, inputs: Inputs, records: list[Record]) -> Protocol:
         for r in plan.lag_fractions:
             q_target = mu * (lo + r * (hi - lo)) * inputs.newton_per_kpa
             fn = hi
-            for _ in range(plan.settle_periods):
-                yield from period(hi, u, "settle", trial)
-            rec = records[-1]
+            rec = yield from settle(hi, u, trial)
             while ks * (u - rec.y_mm) < q_target and u < plan.max_travel_mm:
                 gap_mm = (q_target - ks * (u - rec.y_mm)) / ks
                 u = min(u + min(plan.lag_load_step_mm, gap_mm * 1.02 + 1e-3), plan.max_travel_mm)
@@ -258,8 +269,7 @@ def run_protocol(plan: Plan, inputs: Inputs, records: list[Record]) -> Protocol:
             trial += 1
     if "no_action" in plan.protocols:
         fn = plan.no_action_kpa
-        for _ in range(plan.settle_periods):
-            yield from period(fn, u, "settle", trial)
+        yield from settle(fn, u, trial)
         u0 = u
         step = plan.no_action_travel_mm / plan.no_action_steps
         for k in range(plan.no_action_steps):

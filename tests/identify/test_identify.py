@@ -98,6 +98,8 @@ def test_bad_inputs_and_missing_mocap_are_named_errors():
 def test_every_command_stays_within_the_safety_limits():
     records, _ = idn.identify_sim(idn.scene_with(idn.hidden_set(5)), "nylon", 5)
     assert max(r.fn_kpa for r in records) <= 6.0
+    rises = np.diff([r.fn_kpa for r in records])
+    assert rises.max() <= identify.Plan().max_rise_kpa + 1e-9 and rises.min() < -1.0   # up slowly, down at once
     assert min(r.u_mm for r in records) >= 0.0 and max(r.u_mm for r in records) <= identify.Plan().max_travel_mm
     # every trial ends unloaded: the spring load after each unload is below 2 % of the largest
     ks = idn.scene_with(idn.hidden_set(5)).params["stick_slip"]["spring_n_per_mm"]
@@ -211,3 +213,14 @@ def test_an_overlay_reaches_every_command_that_takes_the_simulators_params(graph
     proc = graph.spawn(["python", "-m", "incipient_slip.nodes.rig_sim", f"params:={tmp_path / 'x.yaml'}"])
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 2 and b"params overlay not found" in err
+
+
+def test_a_robot_that_reports_a_stop_ends_the_identification(graph, probe, tmp_path):
+    from incipient_slip.messages import RobotState
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.identifier", "clock:=tick_start",
+                        f"out_dir:={tmp_path}", "wait_timeout_s:=0"])
+    pub = probe.node.create_publisher(RobotState)
+    probe.until(lambda: pub.subscriber_count() >= 1, 60, procs=[proc], what="the identifier reading /robot/state")
+    pub.publish(RobotState(normal_force_kpa=2.0, state="stopped"))
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 3 and b"the robot stopped" in err

@@ -18,8 +18,10 @@ When the protocols end it writes `identify_results.json` (every period), `identi
 (SIGINT/SIGTERM) it first commands zero spring load (the actuator onto the object) and writes what
 it has. No tick or mocap within `silence_timeout_s` (wall clock, liveness only) is a fault: exit 3.
 
-Safety of its own: every F_N is clamped to the safety limit and every position to
-[0, max_travel_mm] by the protocol; the nodes that move the hardware clamp again.
+Safety of its own: every F_N is clamped to the safety limit, rises at most `max_rise_kpa` a period
+(a press loop overshoots a big step) and every position stays in [0, max_travel_mm], by the
+protocol; a robot that reports a stop ends the identification (exit 3, unloaded, what was measured
+written); the nodes that move the hardware clamp again.
 """
 from __future__ import annotations
 
@@ -52,6 +54,7 @@ class Identifier(Node):
         "gain_rel_sd": Param(0.1, lo=0.0, hi=0.99, help="its relative standard uncertainty"),
         "levels_kpa": Param("5.9,4.7,3.5,2.3,1.1", help="F_N levels of the stiffness ramps, highest first (kPa, comma-separated)"),
         "step_mm": Param(0.1, lo=1e-3, hi=1.0, help="actuator step per period on a ramp (mm)"),
+        "max_rise_kpa": Param(1.0, lo=1e-3, hi=6.0, help="F_N rises at most this per period (kPa)"),
         "slide_rise_mm": Param(0.02, lo=1e-3, hi=1.0, help="a ramp slid when y rises this much above its stuck steps (mm)"),
         "max_travel_mm": Param(48.0, lo=0.0, hi=50.0, help="the actuator never goes past this (mm)"),
         "protocols": Param("stiffness,lag,no_action", help="which protocols to run, in this order (comma-separated)"),
@@ -72,7 +75,7 @@ class Identifier(Node):
         try:
             self.plan = identify.Plan(levels_kpa=tuple(float(x) for x in str(p("levels_kpa")).split(",")),
                                       step_mm=p("step_mm"), max_travel_mm=p("max_travel_mm"),
-                                      slide_rise_mm=p("slide_rise_mm"),
+                                      slide_rise_mm=p("slide_rise_mm"), max_rise_kpa=p("max_rise_kpa"),
                                       protocols=tuple(x.strip() for x in str(p("protocols")).split(",")),
                                       no_action_steps=p("no_action_steps"))
             self.inputs = identify.Inputs(spring_n_per_mm=p("spring_n_per_mm"), spring_rel_sd=p("spring_rel_sd"),
@@ -122,6 +125,11 @@ class Identifier(Node):
 
     def on_robot(self, msg: RobotState) -> None:
         self.forces.append((msg.stamp_ns, msg.normal_force_kpa))
+        if (msg.protective_stop or msg.emergency_stop or msg.state == "stopped") and not self.finished:
+            # a stopped robot presses nothing the protocol assumes: end, unloaded, with what was measured
+            self.warn(f"the robot stopped (state {msg.state}, protective stop {msg.protective_stop}, emergency "
+                      f"stop {msg.emergency_stop}) in period {self.next_period}; ending the identification")
+            self.shutdown("robot stopped", EXIT_FAULT)
 
     def on_tick(self, msg: ActuatorState) -> None:
         self.ticks[msg.step_index] = msg.position_mm - self.param("actuator_origin_mm")
