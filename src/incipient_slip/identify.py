@@ -280,12 +280,11 @@ def run_protocol(plan: Plan, inputs: Inputs, records: list[Record]) -> Protocol:
 
 # --- the fit -------------------------------------------------------------------------------------
 
-T95 = {1: 12.71, 2: 4.30, 3: 3.18, 4: 2.78, 5: 2.57, 6: 2.45, 7: 2.36, 8: 2.31, 9: 2.26, 10: 2.23}
-
-
 def t95(dof: int) -> float:
-    """Two-sided 95 % Student t quantile (1.96 beyond the table)."""
-    return T95.get(dof, 1.96) if dof > 0 else math.inf
+    """Two-sided 95 % Student t quantile (inf without degrees of freedom)."""
+    from scipy.stats import t
+
+    return float(t.ppf(0.975, dof)) if dof > 0 else math.inf
 
 
 def _trials(records, phases) -> dict[int, list[Record]]:
@@ -595,15 +594,5 @@ def write_outputs(results: dict, records: list[Record], out_dir, protocol: str =
     return {k: str(v) for k, v in paths.items()}
 
 
-def plan_from_dict(values: dict) -> Plan:
-    """Return a Plan from {field: value} (launch params); unknown names are an error."""
-    known = {f for f in Plan.__dataclass_fields__}
-    unknown = set(values) - known
-    if unknown:
-        raise IdentificationError(f"unknown plan settings {sorted(unknown)} (known: {', '.join(sorted(known))})")
-    vals = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
-    return Plan(**vals)
-
-
 __all__ = ["Command", "IdentificationError", "Inputs", "Observation", "Plan", "Record", "analyze", "overlay",
-           "plan_from_dict", "read_period", "run_protocol", "write_outputs"]
+           "read_period", "run_protocol", "write_outputs"]
