@@ -224,3 +224,16 @@ def test_a_robot_that_reports_a_stop_ends_the_identification(graph, probe, tmp_p
     pub.publish(RobotState(normal_force_kpa=2.0, state="stopped"))
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 3 and b"the robot stopped" in err
+
+
+def test_overlays_of_several_materials_merge_into_one_rig(tmp_path):
+    overlays = []
+    for material, seed in (("pla", 1), ("tpu", 2)):
+        records, results = idn.identify_sim(idn.scene_with(idn.hidden_set(seed), material), material, seed,
+                                            identify.Plan(protocols=("stiffness",)))
+        overlays.append(load_overlay(identify.write_outputs(results, records, tmp_path / material)["overlay"]))
+    doc = validation.merge_overlays(overlays)
+    assert set(doc["materials"]) == {"pla", "tpu"} and doc["provenance"]["material"] == "pla, tpu"
+    assert doc["pre_slip"] == overlays[-1]["pre_slip"]
+    points = validation.overlay_points(doc)
+    assert any(n.startswith("pla.mu_identified") for n in points) and any(n.startswith("tpu.mu_identified") for n in points)

@@ -92,10 +92,11 @@ def add_arguments(parser) -> None:
                         help=f"also sweep s_d over {SWEEP_SD} at each point with this many runs per method (default 0: no sweep)")
     parser.add_argument("--keep", type=Path, metavar="RESULTS_JSON",
                         help="a previous results.json whose points not run this time are kept in the report")
-    parser.add_argument("--params", type=Path, metavar="OVERLAY",
-                        help="a params overlay of an identified rig (launch identify.yaml, docs/identification.md): "
-                             "predict the Table for that rig at the overlay's values and at each end of its "
-                             "intervals, one at a time (no refit to the paper's targets); results and page go to --out")
+    parser.add_argument("--params", type=Path, nargs="+", metavar="OVERLAY",
+                        help="params overlays of an identified rig (launch identify.yaml, docs/identification.md; "
+                             "one per material, the pad's values from the last): predict the Table for that rig "
+                             "on its identified materials at the values and at each end of their intervals, one at "
+                             "a time (no refit to the paper's targets); results and page go to --out")
     parser.add_argument("--workers", type=int, help="LocalCluster workers (default --jobs)")
     parser.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="a running dask scheduler instead of a LocalCluster")
 
@@ -175,6 +176,26 @@ def refit_task(name: str, overrides: dict, seed: int, refits=None) -> dict:
             break
     return {"point": name, "overrides": overrides, "values": fit["values"], "summary": summ, "refits": n,
             "consistent": cal.consistent_with_open_loop(summ), "seconds": time.perf_counter() - t0}
+
+
+def merge_overlays(docs: list[dict]) -> dict:
+    """Return one overlay from several sessions of one rig (one per material): the materials of
+    all, the pad's and the rig's entries from the last; provenance lists every session."""
+    merged: dict = {"provenance": {}}
+    for doc in docs:
+        for section, entries in doc.items():
+            if section == "provenance":
+                continue
+            if section == "materials":
+                merged.setdefault("materials", {}).update(entries)
+            else:
+                merged.setdefault(section, {}).update(entries)
+    sessions = [d["provenance"] for d in docs]
+    last = sessions[-1]
+    merged["provenance"] = {**last, "material": ", ".join(str(p.get("material")) for p in sessions),
+                            "date": ", ".join(sorted({str(p.get("date")) for p in sessions})),
+                            "sessions": sessions}
+    return merged
 
 
 def overlay_points(doc: dict) -> dict[str, dict]:
@@ -283,7 +304,7 @@ def run(settings) -> dict:
         if joint or opt("points") or opt("sweep_at"):
             raise UsageError("--params runs the identified rig's own points; leave out --joint, --points and --sweep-at")
         try:
-            doc = load_overlay(opt("params"))
+            doc = merge_overlays([load_overlay(path) for path in opt("params")])
             rig_points = overlay_points(doc)
         except SceneError as exc:
             raise UsageError(str(exc)) from None
