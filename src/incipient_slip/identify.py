@@ -274,7 +274,7 @@ def run_protocol(plan: Plan, inputs: Inputs, records: list[Record]) -> Protocol:
         step = plan.no_action_travel_mm / plan.no_action_steps
         for k in range(plan.no_action_steps):
             yield from period(fn, u0 + k * step, "no-action", trial)
-        yield from unload(fn, u0 + plan.no_action_steps * step, trial)
+        u = yield from unload(fn, u0 + plan.no_action_steps * step, trial)
     yield from period(fn, u, "done", -1)
 
 
