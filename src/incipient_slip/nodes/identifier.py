@@ -55,6 +55,8 @@ class Identifier(Node):
         "levels_kpa": Param("5.9,4.7,3.5,2.3,1.1", help="F_N levels of the stiffness ramps, highest first (kPa, comma-separated)"),
         "step_mm": Param(0.1, lo=1e-3, hi=1.0, help="actuator step per period on a ramp (mm)"),
         "max_rise_kpa": Param(1.0, lo=1e-3, hi=6.0, help="F_N rises at most this per period (kPa)"),
+        "lag_high_kpa": Param(5.9, lo=0.1, hi=6.0, help="the lag trials' F_N before the step (kPa)"),
+        "lag_low_kpa": Param(2.3, lo=0.1, hi=6.0, help="the lag trials' F_N after the step (kPa)"),
         "slide_rise_mm": Param(0.02, lo=1e-3, hi=1.0, help="a ramp slid when y rises this much above its stuck steps (mm)"),
         "max_travel_mm": Param(48.0, lo=0.0, hi=50.0, help="the actuator never goes past this (mm)"),
         "protocols": Param("stiffness,lag,no_action", help="which protocols to run, in this order (comma-separated)"),
@@ -76,6 +78,7 @@ class Identifier(Node):
             self.plan = identify.Plan(levels_kpa=tuple(float(x) for x in str(p("levels_kpa")).split(",")),
                                       step_mm=p("step_mm"), max_travel_mm=p("max_travel_mm"),
                                       slide_rise_mm=p("slide_rise_mm"), max_rise_kpa=p("max_rise_kpa"),
+                                      lag_high_kpa=p("lag_high_kpa"), lag_low_kpa=p("lag_low_kpa"),
                                       protocols=tuple(x.strip() for x in str(p("protocols")).split(",")),
                                       no_action_steps=p("no_action_steps"))
             self.inputs = identify.Inputs(spring_n_per_mm=p("spring_n_per_mm"), spring_rel_sd=p("spring_rel_sd"),
