@@ -54,7 +54,9 @@ clean:
 # Benchmarks print ratios measured side by side in one run; results go to docs/performance.md.
 bench: bench-graph bench-curve bench-bag bench-sim bench-estimator bench-loop
 
+# with the zenoh reference peer (the [bench] extra) beside the graph and raw pyzmq
 bench-graph: $(STAMP)
+	$(BIN)/pip install --quiet -e '.[bench]'
 	$(BIN)/python bench/bench_graph.py
 
 bench-curve: $(STAMP)
