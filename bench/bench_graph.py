@@ -282,7 +282,7 @@ def profile_section() -> None:
 
     def handle():
         sub.last_seq = None
-        node_rx._handle(frames)
+        node_rx._handle("/biotac/pac", body)
 
     pieces = [
         ("send: BiotacPac(...) construct + validate", lambda: BiotacPac(pac_counts=msg.pac_counts)),

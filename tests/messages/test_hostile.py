@@ -335,3 +335,15 @@ def test_any_exception_from_the_decoder_is_a_counted_drop(graph, monkeypatch):
         pub.publish(sample(M.BiotacPac))
         _spin_until(reader, lambda: got)
         assert (len(got), sub.dropped, reader.malformed) == (1, 1, 1)
+
+
+@pytest.mark.parametrize("cls", TYPES, ids=lambda c: c.__name__)
+def test_a_body_without_its_type_is_refused_by_decode_and_decode_any(cls):
+    # msgspec does not require the tag of a lone tagged Struct: the wire path must still
+    # refuse a body that names no type (found by the mutation test above)
+    body = body_of(sample(cls))
+    assert M.decode(pack(body), cls) == sample(cls)      # the wire path is built and in use
+    del body["type"]
+    for fn in (lambda b: M.decode(b, cls), M.decode_any):
+        with pytest.raises(M.MessageError, match="type"):
+            fn(pack(body))

@@ -51,6 +51,8 @@ __all__ = ["Node", "Publisher", "RawPublisher", "Subscription", "RawSubscription
            "run_node", "POLL_S", "LINGER_MS", "ANY_TOPIC", "READERS_ENV", "WRITERS_ENV", "HELLO"]
 
 POLL_S = 0.1              # longest a loop blocks before it looks at the stop flag
+DRAIN_MAX = 256           # queued messages one spin_once handles after the one it waited for
+_RCVMORE = int(zmq.RCVMORE)
 LINGER_MS = 500           # longest close() waits to flush queued messages
 HWM = 100_000             # per-peer queue, messages; P_AC at 100 frames/s is tiny beside it
 HEARTBEAT_S = 1.0
@@ -85,7 +87,8 @@ class Publisher:
         self.node, self.type, self.topic = node, msg_type, topic
         self.frame = M.topic_frame(topic)
         self.seq = 0
-        self._send = node._xpub.send_multipart
+        self._send_part = node._xpub.send      # two sends: send_multipart's checks cost more
+        self._encode = M.body_encoder(msg_type) if msg_type is not M.Message else None
         self.latched = msg_type.LATCHED
         self.last: list[bytes] | None = None    # latched: the frames re-sent to a late subscriber
 
@@ -99,11 +102,16 @@ class Publisher:
         else:
             seq = self.seq
             self.seq = seq + 1
-        frames = [self.frame, M.encode(msg, stamp_ns=msg.stamp_ns or time.time_ns(), seq=seq)]
+        body = self._encode(msg, msg.stamp_ns or time.time_ns(), seq)
         if self.latched:
-            self.last = frames
-        self._send(frames)
+            self.last = [self.frame, body]
+        self._send_part(self.frame, zmq.SNDMORE)
+        self._send_part(body)
         return seq
+
+    def _send(self, frames: list[bytes]) -> None:
+        self._send_part(frames[0], zmq.SNDMORE)
+        self._send_part(frames[1])
 
     def subscriber_count(self) -> int:
         """How many subscriptions (across nodes) currently match this topic."""
@@ -148,6 +156,7 @@ class Subscription:
         self.on_gap = on_gap
         self.received = self.gaps = self.missed = self.dropped = self.errors = 0
         self.last_seq: int | None = None
+        self._by_source = msg_type is M.Heartbeat
         self._last_by_source: dict[str, int] = {}
 
     def _deliver(self, body: bytes, recv_ns: int) -> None:
@@ -162,29 +171,38 @@ class Subscription:
             return
         self.received += 1
         seq = msg.seq
-        if self.type is M.Heartbeat:
+        if self._by_source:
             last = self._last_by_source.get(msg.node)
             self._last_by_source[msg.node] = seq
         else:
             last = self.last_seq
         self.last_seq = seq
         if last is not None and seq > last + 1:
-            self.gaps += 1
-            self.missed += seq - last - 1
-            node.seq_gaps += 1
-            node.warn(throttle_s=_LOG_EVERY_S, key=("gap", self.topic),
-                      text=f"seq gap on {self.topic}: {last} -> {seq} ({seq - last - 1} lost)")
-            if self.on_gap is not None:
-                self._call(self.on_gap, last, seq)
-        self._call(self.callback, msg)
+            self._gap(last, seq)
+        try:      # _call inlined: this is the hot path
+            self.callback(msg)
+        except Exception:  # a bad message must never kill the node: log, count, go on
+            self._failed()
+
+    def _gap(self, last: int, seq: int) -> None:
+        self.gaps += 1
+        self.missed += seq - last - 1
+        self.node.seq_gaps += 1
+        self.node.warn(throttle_s=_LOG_EVERY_S, key=("gap", self.topic),
+                       text=f"seq gap on {self.topic}: {last} -> {seq} ({seq - last - 1} lost)")
+        if self.on_gap is not None:
+            self._call(self.on_gap, last, seq)
 
     def _call(self, fn, *args) -> None:
         try:
             fn(*args)
         except Exception:  # a bad message must never kill the node: log, count, go on
-            self.errors += 1
-            self.node.warn(throttle_s=_LOG_EVERY_S, key=("cb", self.topic),
-                           text=f"callback for {self.topic} raised:\n{traceback.format_exc()}")
+            self._failed()
+
+    def _failed(self) -> None:
+        self.errors += 1
+        self.node.warn(throttle_s=_LOG_EVERY_S, key=("cb", self.topic),
+                       text=f"callback for {self.topic} raised:\n{traceback.format_exc()}")
 
 
 class RawSubscription(Subscription):
@@ -294,7 +312,7 @@ class Node:
         self._sub.setsockopt(zmq.LINGER, 0)
         if self._keys:
             security.secure_client(self._sub, self._keys)
-        self._sub_recv = self._sub.recv_multipart
+        self._sub_more = self._sub.get      # get(RCVMORE): getsockopt's wrapper costs more
         self._rcvtimeo = -1
         self._info = discovery.NodeInfo(self.name, os.getpid(), endpoint, started_ns=time.time_ns(),
                                         pidns=discovery.namespace("pid"), netns=discovery.namespace("net"))
@@ -494,9 +512,11 @@ class Node:
         return self.exit_code
 
     def spin_once(self, timeout_s: float = POLL_S) -> None:
-        """Waits at most `timeout_s` for one message, handles it and any due timers."""
-        # Hot path: one blocking recv with a receive timeout (no poller, no EAGAIN per message)
-        # is what a raw pyzmq loop does; XPUB subscription news is read at discovery ticks.
+        """Waits at most `timeout_s` for a message, handles it, then the messages already queued
+        (at most DRAIN_MAX, none once a timer or the discovery scan is due), then due timers."""
+        # Hot path: one blocking recv with a receive timeout (no poller), as a raw pyzmq loop
+        # does, then non-blocking reads while messages are queued (one EAGAIN per burst, not per
+        # message); XPUB subscription news is read at discovery ticks.
         if not self._said_hello:
             self._say_hello()
         now = time.monotonic()
@@ -504,20 +524,21 @@ class Node:
             self._discover()
             self._drain_xpub()
             now = time.monotonic()
-        wait = min(timeout_s, self._next_scan - now)
         timers = self._timers
-        if timers:
-            wait = min(wait, timers[0].due - now)
-        ms = max(0, int(wait * 1000.0 + 0.999))
+        due = min(self._next_scan, timers[0].due) if timers else self._next_scan
+        ms = max(0, int(min(timeout_s, due - now) * 1000.0 + 0.999))
         if ms != self._rcvtimeo:
             self._sub.setsockopt(zmq.RCVTIMEO, ms)
             self._rcvtimeo = ms
+        recv, read = self._sub.recv, self._read
         try:
-            frames = self._sub_recv()
+            read(recv())
+            for _ in range(DRAIN_MAX):
+                if self._stop or time.monotonic() >= due:
+                    break
+                read(recv(zmq.NOBLOCK))
         except zmq.Again:
-            frames = None
-        if frames is not None:
-            self._handle(frames)
+            pass
         if timers and timers[0].due <= time.monotonic():
             self._run_timers()
 
@@ -615,23 +636,33 @@ class Node:
         reads = self._info.subscribes
         return ANY_TOPIC in reads or any(t in reads for t in info.publishes)
 
-    def _handle(self, frames: list) -> None:
-        recv_ns = time.time_ns()
-        if len(frames) == 2 and frames[0][-1:] == b"\0":
-            raw_topic, body = frames
-            try:
-                topic = raw_topic[:-1].decode()
-            except UnicodeDecodeError:
-                topic = None
+    def _read(self, first: bytes) -> None:
+        """Reads the rest of the message whose first frame is `first` and handles it; a message
+        of other than two frames, or whose topic is not NUL-terminated UTF-8, is a counted drop."""
+        more = self._sub_more
+        if more(_RCVMORE):
+            body = self._sub.recv()
+            if not more(_RCVMORE) and first[-1:] == b"\0":
+                try:
+                    topic = first[:-1].decode()
+                except UnicodeDecodeError:
+                    pass
+                else:
+                    self._handle(topic, body)
+                    return
+            frames = [first, body]
+            while more(_RCVMORE):
+                frames.append(self._sub.recv())
         else:
-            topic = None
-        if topic is None:
-            self.malformed += 1
-            try:
-                M.split_frames(frames)
-            except M.MessageError as exc:
-                self.warn(throttle_s=_LOG_EVERY_S, key="frames", text=f"dropped malformed frames: {exc}")
-            return
+            frames = [first]
+        self.malformed += 1
+        try:
+            M.split_frames(frames)
+        except M.MessageError as exc:
+            self.warn(throttle_s=_LOG_EVERY_S, key="frames", text=f"dropped malformed frames: {exc}")
+
+    def _handle(self, topic: str, body: bytes) -> None:
+        recv_ns = time.time_ns()
         # A body equal to the last one on its topic is a latched state re-sent for a subscriber
         # that joined after us (seq and stamp included, so never a new message of one publisher)
         if topic in self._latched_topics:

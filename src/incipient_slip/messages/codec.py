@@ -25,7 +25,7 @@ from incipient_slip.messages.fields import (
 )
 from incipient_slip.messages.types import MESSAGE_TYPES
 
-__all__ = ["encode", "decode", "decode_any", "decode_named", "topic_frame", "split_frames", "to_plain"]
+__all__ = ["encode", "body_encoder", "decode", "decode_any", "decode_named", "topic_frame", "split_frames", "to_plain"]
 
 _UINT64_END = 1 << 64
 
@@ -40,13 +40,18 @@ def encode(msg: Message, *, stamp_ns: int | None = None, seq: int | None = None)
         raise MessageError(msg.TOPIC, "stamp_ns", f"{stamp_ns!r} is not a uint64")
     if seq is not None and not (type(seq) is int and 0 <= seq < _UINT64_END):
         raise MessageError(msg.TOPIC, "seq", f"{seq!r} is not a uint64")
-    cls = type(msg)
+    return body_encoder(type(msg))(msg, msg.stamp_ns if stamp_ns is None else stamp_ns,
+                                   msg.seq if seq is None else seq)
+
+
+def body_encoder(cls: type[Message]) -> Any:
+    """The body encoder of `cls`, (msg, stamp_ns, seq) -> bytes, for callers whose stamp_ns and
+    seq are uint64 already (a publisher's); generated once per class from its field specs."""
     try:
-        body_of = _BODY_OF[cls]
+        return _ENCODERS[cls]
     except KeyError:
-        body_of = _BODY_OF[cls] = _compile_body_of(cls)
-    return _pack(body_of(msg, msg.stamp_ns if stamp_ns is None else stamp_ns,
-                         msg.seq if seq is None else seq))
+        enc = _ENCODERS[cls] = _compile_encoder(cls)
+        return enc
 
 
 def topic_frame(topic: str) -> bytes:
@@ -70,9 +75,9 @@ def split_frames(frames: list[bytes]) -> tuple[str, bytes]:
 def decode(body: bytes, expected: type[Message], topic: str | None = None) -> Message:
     """The message of type `expected` in `body`; MessageError if anything is off."""
     try:
-        return _WIRE[expected](body)
-    except KeyError:
-        _WIRE[expected] = _compile_wire_decoder(expected)
+        msg = _wire(body)
+        if type(msg) is expected:
+            return msg
     except Exception:  # refused or unusual: the naming path decides, and says what is wrong
         pass
     return decode_named(body, expected, topic)
@@ -81,7 +86,7 @@ def decode(body: bytes, expected: type[Message], topic: str | None = None) -> Me
 def decode_any(body: bytes, topic: str = "?") -> Message:
     """The message in `body`, of whatever type its header names (for bag and echo tools)."""
     try:
-        return _wire_any()(body)
+        return _wire(body)
     except Exception:  # refused or unusual: the naming path decides, and says what is wrong
         obj = _unpack(body, topic)
         return _validate_fields(_header(obj, topic), obj, topic)
@@ -166,18 +171,7 @@ def _validate_fields(cls: type[Message], body: dict, topic: str) -> Message:
 # stricter about, accepts it).
 
 _INT64 = (-(1 << 63), (1 << 63) - 1)      # msgspec's integer bounds must fit an int64
-_WIRE: dict[type, Any] = {}               # message type -> body decoder
-_BODY_OF: dict[type, Any] = {}            # message type -> (msg, stamp_ns, seq) -> body map
-_ANY: list = []                            # the decoder of every type (tagged union)
-_pack = msgspec.msgpack.Encoder().encode
-
-
-def _wire_any() -> Any:
-    if not _ANY:
-        _ANY.append(_compile_wire_decoder(None))
-    return _ANY[0]
-
-
+_ENCODERS: dict[type, Any] = {}           # message type -> (msg, stamp_ns, seq) -> body
 def _scalar_type(spec: Scalar) -> Any:
     if spec.choices is not None:
         return Literal[spec.choices]
@@ -214,16 +208,20 @@ def _wire_struct(cls) -> Any:
                              forbid_unknown_fields=True)
 
 
-def _compile_wire_decoder(cls) -> Any:
-    """body -> message of `cls` (of any type if None), raising on anything the wire types or
-    the extra checks refuse (the caller then asks the naming path)."""
-    classes = list(MESSAGE_TYPES.values()) if cls is None else [cls]
-    structs = {c: _wire_struct(c) for c in classes}
+def _wire(body) -> Message:
+    """The wire decoder, built on first use (not at import: `slip --help` need not pay for it)."""
+    global _wire
+    _wire = _compile_wire_decoder()
+    return _wire(body)
+
+
+def _compile_wire_decoder() -> Any:
+    """body -> message of the type its header names, raising on anything the wire types or
+    the extra checks refuse (the caller then asks the naming path). One tagged union of every
+    type: msgspec requires the tag of a union member, not of a lone tagged Struct."""
+    structs = {c: _wire_struct(c) for c in MESSAGE_TYPES.values()}
     structs = {c: w for c, w in structs.items() if w is not None}
-    if not structs:
-        def refuse(body):
-            raise ValueError("no wire type")
-        return refuse
+    assert len(structs) > 1, "a union of one type would not require its tag"
     env: dict[str, Any] = {"frombuffer": np.frombuffer, "new": object.__new__, "max_body": MAX_BODY_BYTES}
     src = []
     for k, (c, wire) in enumerate(structs.items()):
@@ -243,24 +241,24 @@ def _compile_wire_decoder(cls) -> Any:
                 src.append(f"    if not v{i}.isascii() and len(v{i}.encode()) > {spec.max_bytes}: raise ValueError")
         src += [f"    m.__dict__.update({', '.join(names)})", "    return m"]
     union = list(structs.values())
-    env["decode_wire"] = msgspec.msgpack.Decoder(union[0] if len(union) == 1 else Union[tuple(union)]).decode
+    env["decode_wire"] = msgspec.msgpack.Decoder(Union[tuple(union)]).decode
     src += ["def wire(body):",
             "    if len(body) > max_body: raise ValueError",
             "    w = decode_wire(body)",
-            "    return builders[type(w)](w)" if len(union) > 1 else "    return build0(w)"]
+            "    return builders[type(w)](w)"]
     fn = compile_checker("wire", src, env)
     env["builders"] = {w: env[f"build{k}"] for k, w in enumerate(union)}
     return fn
 
 
-def _compile_body_of(cls) -> Any:
-    """(msg, stamp_ns, seq) -> the body map of `cls` (header first, fields in declaration order);
-    generated once per class from its field specs, as a generic loop dominated encoding."""
+def _compile_encoder(cls) -> Any:
+    """(msg, stamp_ns, seq) -> the msgpack body of `cls` (header first, fields in declaration
+    order); generated from the field specs, as a generic loop over them dominated encoding."""
     items = [f"'type': {cls.__name__!r}", f"'v': {cls.SCHEMA_VERSION}"]
     for name, spec in field_specs(cls):
         value = {"stamp_ns": "stamp_ns", "seq": "seq"}.get(name, f"m.{name}")
         if type(spec) is Array:
             value = f"{{'dtype': {spec.dtype!r}, 'shape': list(m.{name}.shape), 'data': m.{name}.tobytes()}}"
         items.append(f"{name!r}: {value}")
-    src = ["def body_of(m, stamp_ns, seq):", f"    return {{{', '.join(items)}}}"]
-    return compile_checker("body_of", src, {})
+    src = ["def encode(m, stamp_ns, seq):", f"    return pack({{{', '.join(items)}}})"]
+    return compile_checker("encode", src, {"pack": msgspec.msgpack.Encoder().encode})
