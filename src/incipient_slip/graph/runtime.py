@@ -52,7 +52,6 @@ __all__ = ["Node", "Publisher", "RawPublisher", "Subscription", "RawSubscription
 
 POLL_S = 0.1              # longest a loop blocks before it looks at the stop flag
 DRAIN_MAX = 256           # queued messages one spin_once handles after the one it waited for
-_RCVMORE = int(zmq.RCVMORE)
 LINGER_MS = 500           # longest close() waits to flush queued messages
 HWM = 100_000             # per-peer queue, messages; P_AC at 100 frames/s is tiny beside it
 HEARTBEAT_S = 1.0
@@ -159,7 +158,7 @@ class Subscription:
         self._by_source = msg_type is M.Heartbeat
         self._last_by_source: dict[str, int] = {}
 
-    def _deliver(self, body: bytes, recv_ns: int) -> None:
+    def _deliver(self, body: bytes) -> None:
         node = self.node
         try:
             msg = M.decode(body, self.type, self.topic)
@@ -312,7 +311,6 @@ class Node:
         self._sub.setsockopt(zmq.LINGER, 0)
         if self._keys:
             security.secure_client(self._sub, self._keys)
-        self._sub_more = self._sub.get      # get(RCVMORE): getsockopt's wrapper costs more
         self._rcvtimeo = -1
         self._info = discovery.NodeInfo(self.name, os.getpid(), endpoint, started_ns=time.time_ns(),
                                         pidns=discovery.namespace("pid"), netns=discovery.namespace("net"))
@@ -532,11 +530,11 @@ class Node:
             self._rcvtimeo = ms
         recv, read = self._sub.recv, self._read
         try:
-            read(recv())
+            read(recv(copy=False))
             for _ in range(DRAIN_MAX):
                 if self._stop or time.monotonic() >= due:
                     break
-                read(recv(zmq.NOBLOCK))
+                read(recv(zmq.NOBLOCK, copy=False))
         except zmq.Again:
             pass
         if timers and timers[0].due <= time.monotonic():
@@ -636,25 +634,28 @@ class Node:
         reads = self._info.subscribes
         return ANY_TOPIC in reads or any(t in reads for t in info.publishes)
 
-    def _read(self, first: bytes) -> None:
+    def _read(self, first: zmq.Frame) -> None:
         """Reads the rest of the message whose first frame is `first` and handles it; a message
-        of other than two frames, or whose topic is not NUL-terminated UTF-8, is a counted drop."""
-        more = self._sub_more
-        if more(_RCVMORE):
-            body = self._sub.recv()
-            if not more(_RCVMORE) and first[-1:] == b"\0":
+        of other than two frames, or whose topic is not NUL-terminated UTF-8, is a counted drop.
+        Frames (copy=False) because Frame.more is a C read, and get(RCVMORE) a Python enum call
+        that cost more than the recv itself."""
+        if first.more:
+            second = self._sub.recv(copy=False)
+            raw = first.bytes
+            if not second.more and raw[-1:] == b"\0":
                 try:
-                    topic = first[:-1].decode()
+                    topic = raw[:-1].decode()
                 except UnicodeDecodeError:
                     pass
                 else:
-                    self._handle(topic, body)
+                    self._handle(topic, second.bytes)
                     return
-            frames = [first, body]
-            while more(_RCVMORE):
-                frames.append(self._sub.recv())
+            frames = [raw, second.bytes]
+            while second.more:
+                second = self._sub.recv(copy=False)
+                frames.append(second.bytes)
         else:
-            frames = [first]
+            frames = [first.bytes]
         self.malformed += 1
         try:
             M.split_frames(frames)
@@ -662,7 +663,7 @@ class Node:
             self.warn(throttle_s=_LOG_EVERY_S, key="frames", text=f"dropped malformed frames: {exc}")
 
     def _handle(self, topic: str, body: bytes) -> None:
-        recv_ns = time.time_ns()
+        recv_ns = time.time_ns() if self._raw_subs else 0
         # A body equal to the last one on its topic is a latched state re-sent for a subscriber
         # that joined after us (seq and stamp included, so never a new message of one publisher)
         if topic in self._latched_topics:
@@ -671,7 +672,7 @@ class Node:
                 return
             self._last_body[topic] = body
         for sub in self._subs.get(topic, ()):
-            sub._deliver(body, recv_ns)
+            sub._deliver(body)
         for raw in self._raw_subs:
             if raw.topic == "" or raw.topic == topic:
                 raw._deliver_raw(topic, body, recv_ns)

@@ -258,7 +258,9 @@ def _compile_encoder(cls) -> Any:
     for name, spec in field_specs(cls):
         value = {"stamp_ns": "stamp_ns", "seq": "seq"}.get(name, f"m.{name}")
         if type(spec) is Array:
-            value = f"{{'dtype': {spec.dtype!r}, 'shape': list(m.{name}.shape), 'data': m.{name}.tobytes()}}"
+            # construction made a fixed shape exactly the declared one
+            shape = f"list(m.{name}.shape)" if None in spec.shape else repr(list(spec.shape))
+            value = f"{{'dtype': {spec.dtype!r}, 'shape': {shape}, 'data': m.{name}.tobytes()}}"
         items.append(f"{name!r}: {value}")
     src = ["def encode(m, stamp_ns, seq):", f"    return pack({{{', '.join(items)}}})"]
     return compile_checker("encode", src, {"pack": msgspec.msgpack.Encoder().encode})
