@@ -7,7 +7,10 @@ fields. Arrays travel as ``{"dtype": "<i2", "shape": [22], "data": <raw little-e
 never pickled.
 
 Decoding turns every malformed input into :class:`MessageError` (topic, field, reason) and
-nothing else: a subscriber may count and drop it.
+nothing else: a subscriber may count and drop it. Two paths, both derived from the field specs:
+the wire path (msgspec Structs decode and validate in one pass) takes every well-formed body;
+whatever it refuses goes to the naming path (msgpack, then each field checked), which decides
+and names the first wrong field. The wire path never accepts what the naming path refuses.
 """
 from __future__ import annotations
 
@@ -104,7 +107,8 @@ def to_plain(msg: Message) -> dict:
 # --- the general (naming) path ---------------------------------------------------------------
 
 def decode_named(body: bytes, expected: type[Message], topic: str | None = None) -> Message:
-    """`decode` by the general path only: what the fast path is checked and measured against."""
+    """`decode` by the naming path only (msgpack, then every field checked and the first wrong one
+    named): what the wire path falls back to, and is tested and measured against."""
     topic = topic or expected.TOPIC
     obj = _unpack(body, topic)
     cls = _header(obj, topic)
@@ -232,7 +236,8 @@ def _compile_wire_decoder() -> Any:
             names.append(f"{name}=v{i}")
             src.append(f"    v{i} = w.{name}")
             if type(spec) is Array:
-                src.append(f"    v{i} = frombuffer(v{i}.data, {spec.dtype!r}).reshape({tuple(spec.shape)!r})")
+                reshape = "" if len(spec.shape) == 1 else f".reshape({tuple(spec.shape)!r})"
+                src.append(f"    v{i} = frombuffer(v{i}.data, {spec.dtype!r}){reshape}")
                 if np.dtype(spec.dtype).kind == "f":
                     src.append(f"    if not allfinite(v{i}): raise ValueError")
             elif spec.kind is float and spec.finite:
