@@ -16,9 +16,11 @@ import sys
 
 from incipient_slip.errors import EXIT_INTERRUPTED, EXIT_USAGE, UsageError
 
-# each module defines register(subparsers) -> None, adding exactly these commands (a test checks)
+# "module" (its register) or "module:function": register(subparsers) -> None, adding exactly
+# these commands (a test checks)
 COMMANDS = {
-    "incipient_slip.graph.tools": ("topic", "node", "bag"),
+    "incipient_slip.graph.tools:register_topic": ("topic", "node"),
+    "incipient_slip.graph.tools:register_bag": ("bag",),
     "incipient_slip.sim.cli": ("dataset",),
     "incipient_slip.models.cli": ("train", "evaluate"),
     "incipient_slip.experiments.cli": ("reproduce",),
@@ -44,8 +46,9 @@ def build_parser(modules: tuple[str, ...] = COMMAND_MODULES) -> argparse.Argumen
         "the simulated rig, the slip models and the paper's experiments.",
     )
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for module_name in modules:
-        importlib.import_module(module_name).register(subparsers)
+    for entry in modules:
+        module_name, _, function = entry.partition(":")
+        getattr(importlib.import_module(module_name), function or "register")(subparsers)
     return parser
 
 

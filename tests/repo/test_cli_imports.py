@@ -15,6 +15,8 @@ import pytest
 from incipient_slip import cli
 
 HEAVY = ("scipy", "sklearn", "matplotlib", "distributed", "dask", "tqdm")
+# what the help of `slip topic` and `slip node` does not need either
+HELP_NEEDS_NONE_OF = HEAVY + ("numpy", "zmq", "msgspec", "msgpack", "yaml", "mcap")
 
 _PROBE = """
 import json, sys
@@ -40,13 +42,23 @@ def test_graph_commands_do_not_import_the_scientific_stack(argv, tmp_path):
     assert _heavy_modules_loaded(argv, tmp_path) == []
 
 
+@pytest.mark.parametrize("argv", [["topic", "--help"], ["node", "--help"], ["topic", "pub", "--help"]],
+                         ids=" ".join)
+def test_topic_and_node_help_import_neither_numpy_nor_zmq(argv, tmp_path):
+    env = dict(os.environ, SLIP_GRAPH_DIR=str(tmp_path / "graph"))
+    out = subprocess.run([sys.executable, "-c", _PROBE.format(heavy=set(HELP_NEEDS_NONE_OF)), *argv],
+                         env=env, capture_output=True, text=True, timeout=300, check=True).stdout
+    assert json.loads(out.strip().splitlines()[-1]) == []
+
+
 def test_each_module_registers_exactly_the_commands_the_table_names():
     # cli.COMMANDS is how `slip WORD` finds the one module to import: it must not drift
-    for module, words in cli.COMMANDS.items():
+    for entry, words in cli.COMMANDS.items():
         parser = argparse.ArgumentParser()
         sub = parser.add_subparsers()
-        importlib.import_module(module).register(sub)
-        assert tuple(sub.choices) == words, module
+        module, _, function = entry.partition(":")
+        getattr(importlib.import_module(module), function or "register")(sub)
+        assert tuple(sub.choices) == words, entry
 
 
 def test_help_and_unknown_words_still_list_every_command(capsys):
@@ -57,4 +69,4 @@ def test_help_and_unknown_words_still_list_every_command(capsys):
         for word in words:
             assert word in out
     assert cli.modules_for(["nonsense"]) == cli.COMMAND_MODULES
-    assert cli.modules_for(["topic", "list"]) == ("incipient_slip.graph.tools",)
+    assert cli.modules_for(["topic", "list"]) == ("incipient_slip.graph.tools:register_topic",)

@@ -59,9 +59,8 @@ DISCONNECT_GRACE_S = 2.0  # how long a withdrawn publisher stays connected so it
 _LOG_EVERY_S = 1.0        # rate limit of repeated warnings (malformed frames, callback errors)
 READY_TIMEOUT_S = 10.0    # default wait for the named readers before a source starts anyway
 
-# A node's INPUTS/OUTPUTS key for "every topic": the recorder reads all, replay writes what its
-# file holds. The launcher counts such a node as a reader (writer) of every topic of the launch.
-ANY_TOPIC = "*"
+# A node's INPUTS/OUTPUTS key for "every topic" (discovery.ANY_TOPIC, as its announcement says it)
+ANY_TOPIC = discovery.ANY_TOPIC
 # Set by the launcher for each node: JSON {output topic after remaps: [reader node names]}, the
 # readers in this launch that `wait_for_readers` waits for. Unset (a node started by hand): none.
 READERS_ENV = "SLIP_READERS"
