@@ -22,6 +22,7 @@ import threading
 from pathlib import Path
 
 import zmq
+import zmq.auth      # certificates; zmq.auth.thread (asyncio) is imported by the ZAP handler
 
 from incipient_slip.graph.discovery import GraphNameError
 
