@@ -237,3 +237,23 @@ def test_overlays_of_several_materials_merge_into_one_rig(tmp_path):
     assert doc["pre_slip"] == overlays[-1]["pre_slip"]
     points = validation.overlay_points(doc)
     assert any(n.startswith("pla.mu_identified") for n in points) and any(n.startswith("tpu.mu_identified") for n in points)
+
+
+@pytest.mark.parametrize("rig", ["sim", "emulated", "hardware"])
+def test_identify_launch_resolves_each_rig_with_the_stage_commanded_and_the_clock_it_needs(rig):
+    from incipient_slip.graph.launch import find_launch_file, load
+    got = {n.name: n for n in load(find_launch_file("identify.yaml"), {"rig": rig}).nodes}
+    ident = got["identifier"].params
+    assert got["identifier"].required and ident["rig"] == rig
+    if rig == "sim":
+        assert set(got) == {"rig_sim", "identifier"}
+        assert got["rig_sim"].params["protocol"] == "commanded" and ident["clock"] == "tick_end"
+        assert ident["levels_kpa"] == "5.9,4.7,3.5,2.3,1.1" and ident["slide_rise_mm"] == 0.02
+    else:
+        assert {"linear_actuator", "ur5", "mocap_bridge", "biotac_reader"} <= set(got)
+        assert got["linear_actuator"].params["mode"] == "commanded" and got["linear_actuator"].required
+        assert ident["clock"] == "tick_start" and ident["slide_rise_mm"] == 0.08
+        # a press loop ripples F_N: the plan stays clear of the 6.0 kPa limit where the robot retracts
+        assert max(float(x) for x in ident["levels_kpa"].split(",")) <= 5.5 and ident["lag_high_kpa"] <= 5.5
+    if rig == "hardware":
+        assert got["rig_check"].gate and "emulated_rig" not in got
