@@ -104,3 +104,25 @@ def test_start_up_waits_for_the_rig_and_then_a_silent_graph_is_a_fault(graph, tm
     node.pubs[RobotState].publish(RobotState(normal_force_kpa=2.9, stamp_ns=1))   # the rig is up
     assert proc.wait(60) == 3          # then no command within 1 s: a fault
     assert "graph silent" in proc.stderr.read().decode()
+
+
+def test_lockstep_summary_waits_for_the_last_periods_truth_within_a_liveness_limit(graph, tmp_path):
+    """/sim/truth travels on its own connection: the last judged period's may come after the
+    verdict (two identical lock-step runs once differed in the last truth, NaN in one)."""
+    from incipient_slip.nodes import supervisor as sv
+    node = sv.Supervisor(params={"lockstep": True, "summary_path": str(tmp_path / "s.json"), "quiet": True},
+                         graph_dir=graph.dir, heartbeat_s=0)
+    try:
+        j = node.judge
+        j.traces["period"][:] = [0, 1]
+        j.truth[0] = (0.9, 0.1)
+        assert node.awaits_truth(100.0)                            # period 1's truth not in yet
+        assert node.awaits_truth(100.0 + sv.TRUTH_WAIT_S - 0.1)
+        assert not node.awaits_truth(100.0 + sv.TRUTH_WAIT_S)      # a liveness limit, not forever
+        node.truth_wait_since = None
+        j.truth[1] = (0.8, 0.2)
+        assert not node.awaits_truth(200.0)                       # in: the summary goes out
+        j.truth.clear()
+        assert not node.awaits_truth(300.0)                       # a rig without truth: never waits
+    finally:
+        node.close()

@@ -13,7 +13,8 @@ data) and its estimate are in, never on `data_wait_s`; the wall-clock timeouts a
 stamps): pose and F_N stamps are taken on the period clock that the actuator's first tick sets
 (`control.PeriodOrigin`), as the estimator does. It publishes `RunEvent`s, writes the JSON run
 summary (also when interrupted) with the per-period traces (`/sim/truth`, the simulated rig's true
-stick ratio and F_T, goes into the traces only, never into a verdict; `slip run plot` draws them),
+stick ratio and F_T, goes into the traces only, never into a verdict; in lock-step the summary waits
+for the last period's truth, at most TRUTH_WAIT_S; `slip run plot` draws them),
 prints one screen and exits 0 (success), 1 (failure) or 3 (fault).
 """
 from __future__ import annotations
@@ -29,6 +30,7 @@ from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.messages import RUN_EVENT_KINDS, ActuatorState, BiotacSlow, GripCommand, ObjectPose, PztState, RobotState, RunEvent, SimTruth, SlipEstimate
 
 POSITIVE = dict(lo=1e-3)
+TRUTH_WAIT_S = 5.0          # lock-step: longest wait for the last period's /sim/truth before the summary
 RECORDED = ("method", "s_d", "k", "seed", "material", "rig", "stop_on_travel")     # params copied into the summary
 
 
@@ -86,6 +88,7 @@ class Supervisor(Node):
         # rig_sim starts period 0 once every topic it publishes has a subscriber (handshake);
         # the slow channels may have no other reader (injection), so count them here, undecoded
         self.create_raw_subscription(lambda *_: None, BiotacSlow.TOPIC)
+        self.truth_wait_since: float | None = None
         self.create_timer(0.01, self.watchdog)
         self.on_shutdown(lambda: self.finish(control.Verdict("interrupted", f"interrupted after {self.judge.steps} steps")))
 
@@ -128,8 +131,20 @@ class Supervisor(Node):
         if not verdict.ended and self.last_command is not None and now - self.last_command > timeout:
             verdict = control.Verdict("fault", f"graph silent: no grip command for {timeout} s after step "
                                                f"{j.steps} (rig, estimator or controller stopped)")
-        if verdict.ended:
+        if verdict.ended and not self.awaits_truth(now):
             self.finish(verdict)
+
+    def awaits_truth(self, now: float) -> bool:
+        """Lock-step on the simulated rig: the last judged period's /sim/truth (traces only, never a
+        verdict) travels on its own connection and may come after the period was judged; wait for
+        it, at most TRUTH_WAIT_S (a liveness limit), so that two identical runs write identical
+        summaries."""
+        j = self.judge
+        if not self.param("lockstep") or not j.truth or not j.traces["period"] or j.traces["period"][-1] in j.truth:
+            return False
+        if self.truth_wait_since is None:
+            self.truth_wait_since = now
+        return now - self.truth_wait_since < TRUTH_WAIT_S
 
     def finish(self, verdict: control.Verdict) -> None:
         """Writes the summary (once), prints it and ends the node with the verdict's exit code."""
