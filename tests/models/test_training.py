@@ -89,7 +89,7 @@ def test_chunked_nystroem_ridge_equals_sklearn_nystroem_plus_ridge():
     np.testing.assert_allclose(rbf_kernel(Z, centers, 0.2) @ w + b, ridge.predict(F), atol=1e-6)
 
 
-def test_grid_search_choice_is_the_same_in_process_and_on_1_and_2_dask_workers(fake_injection_dir, dask_client):
+def test_grid_search_choice_is_the_same_in_process_on_a_local_pool_and_on_1_and_2_dask_workers(fake_injection_dir, dask_client):
     from incipient_slip.models.training import grid_search_svr, svr_grid
     ws = load_windows(fake_injection_dir, feature_spec("e4"), progress=False)
     X, y, g = ws.X.astype(np.float64)[:600], ws.y[:600], ws.series[:600]
@@ -98,3 +98,4 @@ def test_grid_search_choice_is_the_same_in_process_and_on_1_and_2_dask_workers(f
     assert len({r["rmse"] for r in local[1]}) == len(grid)       # the choice is not a tie
     for n in (1, 2):
         assert grid_search_svr(X, y, g, grid, progress=False, client=dask_client(n)) == local
+    assert grid_search_svr(X, y, g, grid, progress=False, workers=2) == local     # a forked local pool

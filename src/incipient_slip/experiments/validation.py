@@ -83,7 +83,7 @@ def add_arguments(parser) -> None:
                                "with --joint, --points defaults to none")
     parser.add_argument("--runs", type=int, help="closed-loop runs per method and point (quick 2, full 10)")
     parser.add_argument("--series", type=int, help="training series per data set and point (quick 30, full 100)")
-    parser.add_argument("--steps", type=int, help=f"steps of a run (quick 60, full {control.MAX_STEPS})")
+    parser.add_argument("--steps", type=int, help=f"steps of a run (default {control.MAX_STEPS}, the paper's, on both budgets)")
     parser.add_argument("--sweep-at", dest="sweep_at", nargs="+", metavar="JOINT_POINT",
                         help="run these joint points again with the s_d sweep (--sweep-runs, default 3) and put "
                              "them into the joint results kept with --keep (names as in docs/validation.md, "
@@ -153,6 +153,14 @@ CONTROLLED = tuple(m for m in TABLE_METHODS if m != "none") + ("oracle",)   # th
 # only when the first cannot meet T1-T4 (an open-loop rule, the same for every point)
 REFITS = ((25, 2, 25), (50, 3, 40))
 SWEEP_METHODS = ("injection", "e19", "e10", "e4", "oracle")
+# the quick preview: four points (the fitted one and one end of each refitted parameter), one refit
+# of at most 10 evaluations; every run the full 450 steps
+QUICK_POINTS = ("fitted", "beta 1.25", "mu spread 1", "lag 1 s")
+QUICK_REFITS = ((25, 2, 10),)
+QUICK = ("4 of the 9 points (fitted, beta 1.25, mu spread 1, lag 1 s), each refitted once with at most 10 "
+         "evaluations (full 25, then 40 when T1-T4' are missed), 30 training series per data set (full 100), "
+         "2 runs per method (full 10), every run the full 450 steps; a point's consistency verdict can "
+         "differ from the full run's")
 
 
 def refit_task(name: str, overrides: dict, seed: int, refits=None) -> dict:
@@ -230,15 +238,24 @@ def summarize(runs: list) -> dict:
             "score": control.score(rate or 0.0, max(y, 1e-6), max(fn, 1e-6))}
 
 
+def budget(settings) -> dict:
+    """Return the points, runs, series, steps and refits of the budget (the options override them)."""
+    opt = settings.option
+    return {"points": opt("points", [] if (opt("joint", False) or opt("sweep_at"))
+                          else list(settings.pick(QUICK_POINTS, POINTS))),
+            "runs": opt("runs", settings.pick(2, 10)), "series": opt("series", settings.pick(30, 100)),
+            "steps": opt("steps", control.MAX_STEPS),      # quick too: shorter runs would all "succeed"
+            "refits": opt("refits", settings.pick(QUICK_REFITS, None))}
+
+
 def run(settings) -> dict:
     """Run every point of the uncertainty set on dask and return the Tables."""
     from dask.distributed import as_completed
 
     opt = settings.option
     joint = bool(opt("joint", False))
-    names = opt("points", [] if (joint or opt("sweep_at")) else list(POINTS))
-    runs, n_series = opt("runs", settings.pick(2, 10)), opt("series", settings.pick(30, 100))
-    steps = opt("steps", settings.pick(60, control.MAX_STEPS))
+    b = budget(settings)
+    names, runs, n_series, steps, refits = (b[k] for k in ("points", "runs", "series", "steps", "refits"))
     for label, v in (("--runs", runs), ("--series", n_series), ("--steps", steps)):
         if v < 1:
             raise UsageError(f"{label} must be >= 1, got {v}")
@@ -266,13 +283,13 @@ def run(settings) -> dict:
         else:                 # a joint point's Table has no sweep unless it is --sweep-at
             sweep = 0 if name in grid else opt("sweep_runs", 0)
         return client.submit(point_task, name, overrides, runs, n_series, steps, settings.seed, str(work),
-                             sweep, opt("refits"), fit, str(settings.figures) if settings.figures else None,
+                             sweep, refits, fit, str(settings.figures) if settings.figures else None,
                              key=f"validation-{_slug(name)}-{settings.seed}-sweep{sweep}", pure=False)
 
     done, joint_done, refit_only = {}, {}, {}
     with open_client(scheduler, opt("workers", settings.jobs)) as client:
         futures = [table_future(n, POINTS[n]) for n in names] + [table_future(n, grid[n]) for n in sweep_at]
-        futures += [client.submit(refit_task, n, ov, settings.seed, opt("refits"),
+        futures += [client.submit(refit_task, n, ov, settings.seed, refits,
                                   key=f"refit-{_slug(n)}-{settings.seed}", pure=False)
                     for n, ov in (grid.items() if joint else ()) if n not in sweep_at]
         total, i = len(futures), 0

@@ -192,16 +192,45 @@ def _fold_mse(Z, y, tr, va, params) -> float:
     return float(np.mean((np.clip(m.predict(Z[va]), 0, 1) - y[va]) ** 2))
 
 
-def grid_search_svr(X, y, groups, grid, n_folds=3, progress=True, desc="grid", client=None):
+_SHARED: tuple = ()      # (Z, y) of the grid search a forked pool's workers inherit
+
+
+def _shared_fold_mse(cell) -> float:
+    params, tr, va = cell
+    return _fold_mse(*_SHARED, tr, va, params)
+
+
+def _pool_mse(Z, y, cells, workers: int, bar) -> list[float]:
+    """Return the fold MSEs of `cells` from `workers` forked processes (Z and y inherited, not sent)."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+    global _SHARED
+    _SHARED = (Z, y)
+    try:
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as pool:
+            out = []
+            for v in pool.map(_shared_fold_mse, cells):
+                out.append(v)
+                bar.update()
+            return out
+    finally:
+        _SHARED = ()
+
+
+def grid_search_svr(X, y, groups, grid, n_folds=3, progress=True, desc="grid", client=None, workers: int = 1):
     """Return (best params, rows of {params, rmse}) by grouped k-fold RMSE on standardized X.
 
     client: a dask Client (`cluster.open_client`): the candidate x fold fits run there as tasks.
+    workers: without a client, fit the cells in this many forked local processes (1: in process).
     Every fit is deterministic, so the rows and the choice do not depend on where they ran."""
     mean, scale = _standardize(X)
     Z = (X - mean) / scale
     folds = list(grouped_folds(groups, n_folds))
     cells = [(params, tr, va) for params in grid for tr, va in folds]
-    if client is None:
+    if client is None and workers > 1:
+        with tqdm(total=len(cells), desc=desc, unit="fit", disable=not progress, leave=False) as bar:
+            mse = _pool_mse(Z, y, cells, workers, bar)
+    elif client is None:
         mse = [_fold_mse(Z, y, tr, va, params)
                for params, tr, va in tqdm(cells, desc=desc, unit="fit", disable=not progress, leave=False)]
     else:
@@ -275,11 +304,12 @@ class TrainResult:
 
 def train_model(ws: WindowSet, kind: str = "svr", max_train: int | None = 6000,
                 grid_max: int = 2000, n_components: int = 1000, quick: bool = False,
-                progress: bool = True, params: dict | None = None, client=None) -> TrainResult:
+                progress: bool = True, params: dict | None = None, client=None, workers: int = 1) -> TrainResult:
     """Return a Model trained on all rows of `ws` (the caller removes the test series first).
 
     params: skip the grid and use these SVR parameters (kind svr / gamma for nystroem).
-    client: a dask Client to run the grid search's fits on (grid_search_svr).
+    client: a dask Client to run the grid search's fits on (grid_search_svr); workers: local
+    processes for them instead (same rows and choice).
     """
     if kind not in KINDS:
         raise ValueError(f"kind {kind!r} unknown; expected one of {', '.join(KINDS)}")
@@ -292,7 +322,7 @@ def train_model(ws: WindowSet, kind: str = "svr", max_train: int | None = 6000,
         n_folds = min(3, len(np.unique(groups[g])))
         params, grid_rows = grid_search_svr(X[g], y[g], groups[g], svr_grid(X.shape[1], quick),
                                             n_folds=n_folds, progress=progress,
-                                            desc=f"grid {ws.spec.method}", client=client)
+                                            desc=f"grid {ws.spec.method}", client=client, workers=workers)
     report["grid"] = grid_rows
     if kind == "svr":
         rows = subsample_rows(len(y), max_train)
