@@ -99,3 +99,36 @@ def test_grid_search_choice_is_the_same_in_process_on_a_local_pool_and_on_1_and_
     for n in (1, 2):
         assert grid_search_svr(X, y, g, grid, progress=False, client=dask_client(n)) == local
     assert grid_search_svr(X, y, g, grid, progress=False, workers=2) == local     # a forked local pool
+
+
+def test_with_a_cache_a_repeated_grid_search_and_fit_train_nothing_and_give_the_same(fake_injection_dir, tmp_path,
+                                                                                     monkeypatch):
+    from sklearn.svm import SVR
+
+    from incipient_slip import cache
+    from incipient_slip.models.training import grid_search_svr, svr_grid, train_model
+    ws = load_windows(fake_injection_dir, feature_spec("e4"), progress=False)
+    X, y, g = ws.X.astype(np.float64)[:400], ws.y[:400], ws.series[:400]
+    grid = svr_grid(X.shape[1], quick=True)
+    fits, real_fit = [], SVR.fit
+    monkeypatch.setattr(SVR, "fit", lambda self, *a, **k: fits.append(1) or real_fit(self, *a, **k))
+    plain = grid_search_svr(X, y, g, grid, progress=False)
+    model = train_model(ws, "svr", max_train=300, grid_max=200, quick=True, progress=False).model
+    n_plain = len(fits)
+    with cache.use(tmp_path / "cache"):
+        first = grid_search_svr(X, y, g, grid, progress=False)
+        cached_model = train_model(ws, "svr", max_train=300, grid_max=200, quick=True, progress=False).model
+        assert len(fits) == 2 * n_plain                # the first pass with a cache fits everything
+        again = grid_search_svr(X, y, g, grid, progress=False)
+        again_model = train_model(ws, "svr", max_train=300, grid_max=200, quick=True, progress=False).model
+    assert len(fits) == 2 * n_plain                    # the second fits nothing
+    assert plain == first == again
+    for m in (cached_model, again_model):
+        np.testing.assert_array_equal(m.weights, model.weights)
+        np.testing.assert_array_equal(m.centers, model.centers)
+    assert cache.root() is None                        # off again after the block
+    y2 = y.copy()
+    y2[0] += 0.01
+    with cache.use(tmp_path / "cache"):
+        grid_search_svr(X, y2, g, grid, progress=False)
+    assert len(fits) > 2 * n_plain                     # other data: another key, fitted again

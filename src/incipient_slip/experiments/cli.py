@@ -14,6 +14,7 @@ import os
 import time
 from pathlib import Path
 
+from incipient_slip import cache
 from incipient_slip.errors import UsageError
 from incipient_slip.paths import docs_dir, runs_dir
 
@@ -119,7 +120,8 @@ def cmd_reproduce(args) -> int:
             raise UsageError(f"--render-only needs {source}; run `slip reproduce {args.experiment}` first")
         results = json.loads(source.read_text())
     else:
-        results = module.run(settings)
+        with cache.use(settings.pick(quick=settings.work / "cache", full=runs_dir() / "cache")):
+            results = module.run(settings)
         save_results(results, settings.work / "results.json")
         if source != settings.work / "results.json":
             save_results(results, source)

@@ -65,8 +65,6 @@ def plan(only=None) -> list[str]:
 
 def cmd_all(args) -> int:
     """Run the plan; print one line per experiment and the final table; return 0 if all succeeded."""
-    from incipient_slip.cli import build_parser
-
     from .cli import cmd_reproduce
     if args.jobs < 1:
         raise UsageError(f"--jobs must be >= 1, got {args.jobs}")
@@ -93,7 +91,7 @@ def cmd_all(args) -> int:
         log = out / f"{name}.log"
         say(f"[{i}/{len(names)}] {name:<16} running (log {log}) ...")
         load0, t0 = os.getloadavg()[0], time.monotonic()
-        rc = _run_logged(build_parser(), cmd_reproduce, argv, log)
+        rc = _run_logged(_parser(), cmd_reproduce, argv, log)
         seconds, loads = time.monotonic() - t0, (load0, os.getloadavg()[0])
         module = load(name)
         results = f", {docs / 'figures' / module.RESULTS}" if getattr(module, "RESULTS", None) else ""
@@ -106,6 +104,16 @@ def cmd_all(args) -> int:
             f"{duration(seconds)} (load {max(loads):.1f})")
     say(table(rows, time.monotonic() - t_all))
     return 0 if all(r[1] == 0 for r in rows) else 1
+
+
+def _parser():
+    """Return a `slip` parser with the `reproduce` command only."""
+    import argparse
+
+    from .cli import register
+    parser = argparse.ArgumentParser(prog="slip")
+    register(parser.add_subparsers(dest="command", required=True))
+    return parser
 
 
 def _run_logged(parser, cmd, argv: list[str], log: Path) -> int:

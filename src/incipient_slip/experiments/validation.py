@@ -164,11 +164,21 @@ QUICK = ("4 of the 9 points (fitted, beta 1.25, mu spread 1, lag 1 s), each refi
 
 
 def refit_task(name: str, overrides: dict, seed: int, refits=None) -> dict:
-    """Return the point's stage-1 refit to T1-T4' and T7 and whether it meets them (docs/calibration.md)."""
+    """Return the point's stage-1 refit to T1-T4' and T7 and whether it meets them (docs/calibration.md);
+    from the content-hashed cache (`incipient_slip.cache`) when the same refit of the same physics
+    and code was done before."""
+    from incipient_slip import cache
+    from incipient_slip.sim.dataset import physics_fingerprint
     from incipient_slip.sim.scene import load_scene
 
-    t0 = time.perf_counter()
     scene = cal.with_values(load_scene("paper"), {tuple(k.split(".")): v for k, v in overrides.items()})
+    key = cache.digest("refit-1", name, physics_fingerprint(scene), seed, refits or REFITS,
+                       cache.source_version(Path(cal.__file__)))
+    return cache.cached("refit", key, lambda: _refit(name, overrides, scene, seed, refits))
+
+
+def _refit(name: str, overrides: dict, scene, seed: int, refits) -> dict:
+    t0 = time.perf_counter()
     n = 0
     for n_fit, runs_fit, evals in refits or REFITS:   # a second, larger refit only when the first misses T1-T4
         fit = cal.fit_mechanics(scene, n_fit, runs_fit, seed, evals, progress=False, stiffness_only=True)
@@ -189,8 +199,8 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
     from incipient_slip.sim.scene import load_scene
     from incipient_slip.models.estimator_core import limit_blas_threads
     from incipient_slip.models.pipeline import run_study
-    from incipient_slip.sim.dataset import write_dataset
 
+    from .datasets import ensure_dataset
     limit_blas_threads(1)
     t0 = time.perf_counter()
     fit = fit or refit_task(name, overrides, seed, refits)
@@ -199,12 +209,9 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
     summ, consistent = fit["summary"], fit["consistent"]
     d = Path(work) / _slug(name)
     dirs = {}
-    for sname in ("paper", "no_injection"):
-        out = d / sname
-        for stale in out.glob("series_*.npz"):
-            stale.unlink()
-        write_dataset(_scene(sname, scene.params), n_series, seed + 1, out, workers=1, progress=False)
-        dirs[sname] = out
+    for sname in ("paper", "no_injection"):     # reused when the same physics made it before
+        dirs[sname] = ensure_dataset(_scene(sname, scene.params), n_series, seed + 1, d / sname, workers=1,
+                                     progress=False)
     study = run_study(dirs, quick=True, max_train=2000, grid_max=600, progress=False)
     models = {m: r.model for m, r in study.results.items()}
     mats = scene.materials

@@ -181,31 +181,47 @@ def svr_grid(n_features: int, quick: bool = False) -> list[dict]:
 
 
 def _fit_svr(Z, y, params, cache_mb=500):
+    """Return an SVR fitted on (Z, y); from the content-hashed cache when one is on (`cache`)."""
+    import sklearn
     from sklearn.svm import SVR
+
+    from .. import cache
     p = dict(params)
-    return SVR(cache_size=cache_mb, **p).fit(Z, y)
+    return cache.cached("svr-fit", cache.digest("svr-fit-1", sklearn.__version__, Z, y, p),
+                        lambda: SVR(cache_size=cache_mb, **p).fit(Z, y))
 
 
-def _fold_mse(Z, y, tr, va, params) -> float:
-    """Return the validation MSE of one SVR candidate fitted on one grouped fold (a grid task)."""
-    m = _fit_svr(Z[tr], y[tr], params)
-    return float(np.mean((np.clip(m.predict(Z[va]), 0, 1) - y[va]) ** 2))
+def _fold_mse(Z, y, tr, va, params, zy_key: str = "") -> float:
+    """Return the validation MSE of one SVR candidate fitted on one grouped fold (a grid task);
+    cached by (`zy_key` = the digest of Z and y, the fold, the parameters) when a cache is on."""
+    import sklearn
+    from sklearn.svm import SVR
+
+    from .. import cache
+
+    def mse():
+        m = SVR(cache_size=500, **dict(params)).fit(Z[tr], y[tr])
+        return float(np.mean((np.clip(m.predict(Z[va]), 0, 1) - y[va]) ** 2))
+    if not zy_key or cache.root() is None:
+        return mse()
+    return cache.cached("svr-fold", cache.digest("svr-fold-1", sklearn.__version__, zy_key, tr, va, dict(params)), mse)
 
 
-_SHARED: tuple = ()      # (Z, y) of the grid search a forked pool's workers inherit
+_SHARED: tuple = ()      # (Z, y, their cache key) of the grid search a forked pool's workers inherit
 
 
 def _shared_fold_mse(cell) -> float:
     params, tr, va = cell
-    return _fold_mse(*_SHARED, tr, va, params)
+    Z, y, zy_key = _SHARED
+    return _fold_mse(Z, y, tr, va, params, zy_key)
 
 
-def _pool_mse(Z, y, cells, workers: int, bar) -> list[float]:
+def _pool_mse(Z, y, zy_key, cells, workers: int, bar) -> list[float]:
     """Return the fold MSEs of `cells` from `workers` forked processes (Z and y inherited, not sent)."""
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
     global _SHARED
-    _SHARED = (Z, y)
+    _SHARED = (Z, y, zy_key)
     try:
         with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as pool:
             out = []
@@ -227,11 +243,13 @@ def grid_search_svr(X, y, groups, grid, n_folds=3, progress=True, desc="grid", c
     Z = (X - mean) / scale
     folds = list(grouped_folds(groups, n_folds))
     cells = [(params, tr, va) for params in grid for tr, va in folds]
+    from .. import cache
+    zy_key = cache.digest(Z, y) if cache.root() is not None else ""
     if client is None and workers > 1:
         with tqdm(total=len(cells), desc=desc, unit="fit", disable=not progress, leave=False) as bar:
-            mse = _pool_mse(Z, y, cells, workers, bar)
+            mse = _pool_mse(Z, y, zy_key, cells, workers, bar)
     elif client is None:
-        mse = [_fold_mse(Z, y, tr, va, params)
+        mse = [_fold_mse(Z, y, tr, va, params, zy_key)
                for params, tr, va in tqdm(cells, desc=desc, unit="fit", disable=not progress, leave=False)]
     else:
         Zf, yf = client.scatter([Z, y])
