@@ -86,8 +86,8 @@ def cmd_all(args) -> int:
     for i, name in enumerate(names, 1):
         argv = ["reproduce", name, "--quiet", "--jobs", str(args.jobs), "--out", str(out / name)]
         argv += ["--quick"] if quick else ["--docs", str(docs)]
-        if name == "validation" and args.joint:
-            argv.append("--joint")
+        if name == "validation" and args.joint:     # the joint set and the one-at-a-time points
+            argv += ["--joint", "--points", *load(name).POINTS]
         log = out / f"{name}.log"
         say(f"[{i}/{len(names)}] {name:<16} running (log {log}) ...")
         load0, t0 = os.getloadavg()[0], time.monotonic()
