@@ -145,9 +145,8 @@ class SlideTracker:
         self.prev_sliding = out.gross_slip and st.sliding
         rule = False
         if out.mocap_y_mm is not None:
-            end = np.array([out.t_start_s + self.rig.period_s])
-            rule = bool(self.labels.gross_slip_travel_mm(out.mocap_t_s, out.mocap_y_mm, end)[0]
-                        >= self.labels.GROSS_SLIP_MM)
+            end = out.t_start_s + self.rig.period_s
+            rule = self.labels.period_travel_mm(out.mocap_t_s, out.mocap_y_mm, end) >= self.labels.GROSS_SLIP_MM
         return self.start_y, rule
 
 
