@@ -80,7 +80,7 @@ def cmd_all(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     names = plan(args.only)
     say = lambda text: print(text, flush=True)  # noqa: E731   (never while an experiment runs)
-    say(f"slip reproduce all{' --quick (a PREVIEW: docs/ untouched)' if quick else ''}: {len(names)} "
+    say(f"slip reproduce all{' --quick (PREVIEWS: of docs/ only the time lines change)' if quick else ''}: {len(names)} "
         f"experiments, {args.jobs} jobs, logs in {out}/ (simulated rig)")
     rows, t_all = [], time.monotonic()
     for i, name in enumerate(names, 1):
