@@ -132,3 +132,22 @@ def test_with_a_cache_a_repeated_grid_search_and_fit_train_nothing_and_give_the_
     with cache.use(tmp_path / "cache"):
         grid_search_svr(X, y2, g, grid, progress=False)
     assert len(fits) > 2 * n_plain                     # other data: another key, fitted again
+
+
+def test_with_a_cache_windows_are_computed_once_per_data_set_and_spec(fake_injection_dir, tmp_path, monkeypatch):
+    from incipient_slip import cache
+    from incipient_slip.models import training
+    plain = load_windows(fake_injection_dir, feature_spec("e4"), progress=False)
+    calls, real = [], training.series_features
+    monkeypatch.setattr(training, "series_features", lambda *a, **k: calls.append(1) or real(*a, **k))
+    with cache.use(tmp_path / "cache"):
+        first = load_windows(fake_injection_dir, feature_spec("e4"), progress=False)
+        n = len(calls)
+        again = load_windows(fake_injection_dir, feature_spec("e4"), progress=False)
+        assert len(calls) == n > 0                           # read back, not computed
+        load_windows(fake_injection_dir, feature_spec("e10"), progress=False)
+        assert len(calls) > n                                # another spec is another key
+    for ws in (first, again):
+        np.testing.assert_array_equal(ws.X, plain.X)
+        np.testing.assert_array_equal(ws.y, plain.y)
+        assert ws.data_hash == plain.data_hash

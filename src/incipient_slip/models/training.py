@@ -79,11 +79,24 @@ def load_windows(data_dir: str | Path, spec: FeatureSpec, min_window_s: float | 
     "drop" keeps windows up to and including the gross-slip onset only (incipient slip range).
     label: "pseudo" (the paper's rule) or "true-ratio" (EXTENSION: the simulator's
     load_ratio_stick, see labels.training_labels); the windows kept are the same for both.
+    With a cache on (`incipient_slip.cache`) the windows are stored under a key of the data set's
+    content hash, the spec, these options and the code of models/, and read back next time.
     """
     if label not in LABELS:
         raise ValueError(f"label {label!r} unknown; expected one of {', '.join(LABELS)}")
     if after_slip not in AFTER_SLIP:
         raise ValueError(f"after_slip {after_slip!r} unknown; expected one of {AFTER_SLIP}")
+    from .. import cache
+    if cache.root() is None:
+        return _load_windows(data_dir, spec, min_window_s, progress, after_slip, label)
+    key = cache.digest("windows-1", ds.dataset_hash(data_dir), repr(spec), min_window_s, after_slip, label,
+                       cache.source_version(Path(__file__).parent))
+    return cache.cached("windows", key, lambda: _load_windows(data_dir, spec, min_window_s, progress, after_slip,
+                                                              label))
+
+
+def _load_windows(data_dir, spec: FeatureSpec, min_window_s, progress: bool, after_slip: str,
+                  label: str) -> WindowSet:
     meta = ds.read_meta(data_dir)
     if spec.stream == "pac" and spec.injection is not None and bool(meta.get("injection", True)) != spec.injection:
         raise ds.DatasetError(
