@@ -30,8 +30,8 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the options every experiment shares (they fill `Settings`)."""
     budget = parser.add_mutually_exclusive_group()
     budget.add_argument("--quick", dest="budget", action="store_const", const="quick",
-                        help="the quick budget: small sizes, seconds to minutes; writes WORK only "
-                        "(what the tests use)")
+                        help="a preview: fewer runs and series, each run as long as the full one's "
+                        "(`slip reproduce --list` gives each experiment's time); writes WORK only")
     budget.add_argument("--full", dest="budget", action="store_const", const="full",
                         help="the full budget behind the numbers in docs/ (default)")
     parser.set_defaults(budget="full")
