@@ -227,7 +227,7 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
     trajectory = (trajectory_figure(scene.params, models, mats[0], series_seed(seed + 2, 0), Path(fig_dir))
                   if fig_dir and name == "fitted" else None)
     return {"point": name, "overrides": overrides, "fit": {"values": fit["values"], "summary": summ,
-                                                           "refits": fit["refits"]},
+                                                           "refits": fit["refits"], "seconds": fit.get("seconds")},
             "trajectory": trajectory,
             "sweep": sweep,
             "consistent": consistent, "rmse": {m: float(r.scores.rmse.mean()) for m, r in study.results.items()},
@@ -560,6 +560,24 @@ def render_answer(results: dict) -> str:
     return "\n".join(lines)
 
 
+def task_times(pts: dict, cores: int = 16) -> str:
+    """Return the joint set's per-task times (one single-threaded dask worker each) and what they
+    add up to on 2 workers and on a `cores`-core cluster (where the longest task sets the time)."""
+    refits = [p["fit"]["seconds"] for p in pts.values() if (p.get("fit") or {}).get("seconds")]
+    tables = [p["seconds"] for p in pts.values() if p.get("table") and p.get("seconds")]
+    if not refits and not tables:
+        return "(no per-task times recorded)"
+    span = lambda v: f"{min(v):.0f}–{max(v):.0f} s (sum {sum(v) / 60:.1f} min)" if v else "–"  # noqa: E731
+    longest = max(refits or [0.0]) + max(tables or [0.0])
+    return (f"Per-task times (simulated rig; one single-threaded dask worker per task, on the shared 2-core "
+            f"machine): refits {span(refits)} for {len(refits)} of {len(pts)} points"
+            + ("" if len(refits) == len(pts) else " (the others' refit time was not recorded by that run)")
+            + f"; Tables {span(tables)} for {len(tables)} points. On 2 workers the recorded tasks take at least "
+            f"{(sum(refits) + sum(tables)) / 2 / 60:.0f} min; on a {cores}-core cluster every point runs at once "
+            f"and the longest refit plus the longest Table, {longest / 60:.0f} min, bounds the set "
+            "(a refit is one Nelder-Mead fit, sequential; `--scheduler tcp://HOST:PORT` uses such a cluster).")
+
+
 def _render_joint(results: dict, head: str, methods: list) -> str:
     """Return the joint set's block: which points the open-loop data allow, and the Table there."""
     joint = results["joint"]
@@ -582,6 +600,7 @@ def _render_joint(results: dict, head: str, methods: list) -> str:
         v = p["fit"]["values"]
         lines.append(f"| {n} | {v['pre_slip.bulk_shear_n_per_mm']:.3f} | {v['stick_slip.spring_n_per_mm']:.4f} | "
                      + " | ".join(_outcome(p['table'][m]) for m in methods) + " |")
+    lines += ["", task_times(pts)]
     if results.get("joint_figure"):
         f = results["joint_figure"]
         lines += ["", f"![simulated rig: success over the joint uncertainty set](figures/{f})",
