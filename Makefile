@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-load test-slow reproduce reproduce-quick bench bench-graph bench-cli bench-curve bench-bag bench-sim bench-estimator bench-loop bench-loop-viewer clean
+.PHONY: demo test test-load test-slow reproduce reproduce-quick bench bench-graph bench-cli bench-curve bench-bag bench-sim bench-grid bench-estimator bench-loop bench-loop-viewer clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -81,6 +81,10 @@ bench-bag: $(STAMP)
 
 bench-sim: $(STAMP)
 	$(BIN)/python bench/bench_sim.py
+
+# SVR grid search in process vs a forked pool of 2 (`slip reproduce --jobs`), interleaved
+bench-grid: $(STAMP)
+	$(BIN)/python bench/bench_grid.py
 
 bench-estimator: $(STAMP)
 	$(BIN)/python bench/bench_estimator.py
