@@ -2,11 +2,12 @@
 
 Order: calibration (reports the fit; it never rewrites the params file here), models (the shipped
 models/*.npz, which the Table and the diagnosis load), estimation, accuracy-vs-time, stabilization,
-diagnosis, validation. The experiments share what they can through the data-set cache
-(`experiments.datasets`, keyed by a content hash of scene, params, seed, size and simulator code)
-and the SVR fit cache (`models.fitcache`, keyed by the data, the parameters and the library
-versions): estimation and accuracy vs time read one 500-series data set, models and diagnosis one
-100-series set, and a rerun of an unchanged experiment fits nothing it has fitted before.
+diagnosis, validation. The experiments share what they can: data sets are reused by
+`experiments.datasets` (meta.json's scene, size, seed and physics fingerprint: a hash of the
+scene, its params and the simulator's code), so estimation and accuracy vs time read one
+500-series set and models and diagnosis one 100-series set; SVR fits, feature windows and
+validation refits go through the content-hashed cache (`incipient_slip.cache`, runs/cache), so a
+rerun of an unchanged experiment fits and refits nothing it has done before.
 
 Each experiment's own output goes to WORK/NAME.log; the terminal shows one line per experiment
 and, at the end, the table of what ran, how long it took (with the load average) and where it
@@ -27,9 +28,8 @@ from . import EXPERIMENTS, load
 from .docs import write_blocks
 from .timing import duration, load_times, record_time, time_block
 
-# the order in which they run: models before the two that load the shipped models
+# the order in which they run: models before stabilization and diagnosis, which load the shipped models
 ORDER = ("calibration", "models", "estimation", "accuracy-vs-time", "stabilization", "diagnosis", "validation")
-NEEDS = {"stabilization": ("models",), "diagnosis": ("models",)}
 
 
 def add_all_parser(sub) -> None:
@@ -57,6 +57,11 @@ def add_all_parser(sub) -> None:
                    "(a full run always records its own, as `slip reproduce NAME` does)")
 
 
+def _say(text: str) -> None:
+    """Print one progress line (only between experiments: while one runs, fd 1 is its log)."""
+    print(text, flush=True)
+
+
 def plan(only=None) -> list[str]:
     """Return the experiments to run, in ORDER (every experiment of EXPERIMENTS exactly once)."""
     assert sorted(ORDER) == sorted(EXPERIMENTS), "ORDER must list every experiment"
@@ -79,8 +84,7 @@ def cmd_all(args) -> int:
     out = args.out or runs_dir() / ("all-quick" if quick else "all")
     out.mkdir(parents=True, exist_ok=True)
     names = plan(args.only)
-    say = lambda text: print(text, flush=True)  # noqa: E731   (never while an experiment runs)
-    say(f"slip reproduce all{' --quick (PREVIEWS: of docs/ only the time lines change)' if quick else ''}: {len(names)} "
+    _say(f"slip reproduce all{' --quick (PREVIEWS: of docs/ only the time lines change)' if quick else ''}: {len(names)} "
         f"experiments, {args.jobs} jobs, logs in {out}/ (simulated rig)")
     rows, t_all = [], time.monotonic()
     for i, name in enumerate(names, 1):
@@ -89,7 +93,7 @@ def cmd_all(args) -> int:
         if name == "validation" and args.joint:     # the joint set and the one-at-a-time points
             argv += ["--joint", "--points", *load(name).POINTS]
         log = out / f"{name}.log"
-        say(f"[{i}/{len(names)}] {name:<16} running (log {log}) ...")
+        _say(f"[{i}/{len(names)}] {name:<16} running (log {log}) ...")
         load0, t0 = os.getloadavg()[0], time.monotonic()
         rc = _run_logged(_parser(), cmd_reproduce, argv, log)
         seconds, loads = time.monotonic() - t0, (load0, os.getloadavg()[0])
@@ -100,9 +104,9 @@ def cmd_all(args) -> int:
             record_time(name, "quick", seconds, loads, docs, args.jobs)
             if (docs / module.DOC).is_file():
                 write_blocks(docs / module.DOC, time_block(name, module, load_times(docs)))
-        say(f"[{i}/{len(names)}] {name:<16} {'done' if rc == 0 else f'FAILED (exit {rc})'} in "
+        _say(f"[{i}/{len(names)}] {name:<16} {'done' if rc == 0 else f'FAILED (exit {rc})'} in "
             f"{duration(seconds)} (load {max(loads):.1f})")
-    say(table(rows, time.monotonic() - t_all))
+    _say(table(rows, time.monotonic() - t_all))
     return 0 if all(r[1] == 0 for r in rows) else 1
 
 
