@@ -84,7 +84,8 @@ def cmd_all(args) -> int:
     out = args.out or runs_dir() / ("all-quick" if quick else "all")
     out.mkdir(parents=True, exist_ok=True)
     names = plan(args.only)
-    _say(f"slip reproduce all{' --quick (PREVIEWS: of docs/ only the time lines change)' if quick else ''}: {len(names)} "
+    preview = " --quick (PREVIEWS: of docs/ only the time lines change)" if quick else ""
+    _say(f"slip reproduce all{preview}: {len(names)} "
         f"experiments, {args.jobs} jobs, logs in {out}/ (simulated rig)")
     rows, t_all = [], time.monotonic()
     for i, name in enumerate(names, 1):

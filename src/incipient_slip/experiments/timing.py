@@ -73,7 +73,8 @@ def entry_text(entry: dict | None) -> str:
 def list_line(name: str, times: dict) -> str:
     """Return the 'full ..., quick ...' part of `slip reproduce --list` for one experiment."""
     t = times.get(name, {})
-    return f"full {duration((t.get('full') or {}).get('seconds'))}, quick {duration((t.get('quick') or {}).get('seconds'))}"
+    full, quick = ((t.get(b) or {}).get("seconds") for b in ("full", "quick"))
+    return f"full {duration(full)}, quick {duration(quick)}"
 
 
 def time_block(name: str, module, times: dict) -> dict[str, str]:
