@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-load test-slow bench bench-graph bench-cli bench-curve bench-bag bench-sim bench-estimator bench-loop bench-loop-viewer clean
+.PHONY: demo test test-load test-slow reproduce reproduce-quick bench bench-graph bench-cli bench-curve bench-bag bench-sim bench-grid bench-estimator bench-loop bench-loop-viewer clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -48,6 +48,16 @@ test-load: $(STAMP)
 test-slow: $(STAMP)
 	$(BIN)/python -m pytest -q -m slow
 
+# make reproduce: every result of the paper on the simulated rig (`slip reproduce all`: every
+# experiment in dependency order, one progress line each, a final table; docs/ and its measured
+# times rewritten; JOINT=1 adds the validation's joint uncertainty set). make reproduce-quick: the
+# quick previews (runs/all-quick; only the quick times in docs/ change).
+reproduce: $(STAMP)
+	$(BIN)/slip reproduce all $(if $(JOINT),--joint)
+
+reproduce-quick: $(STAMP)
+	$(BIN)/slip reproduce all --quick
+
 clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis
 
@@ -71,6 +81,10 @@ bench-bag: $(STAMP)
 
 bench-sim: $(STAMP)
 	$(BIN)/python bench/bench_sim.py
+
+# SVR grid search in process vs a forked pool of 2 (`slip reproduce --jobs`), interleaved
+bench-grid: $(STAMP)
+	$(BIN)/python bench/bench_grid.py
 
 bench-estimator: $(STAMP)
 	$(BIN)/python bench/bench_estimator.py

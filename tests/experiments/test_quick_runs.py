@@ -8,6 +8,7 @@ import json
 
 import numpy as np
 
+from incipient_slip import control
 from incipient_slip.cli import main
 from incipient_slip.models.features import METHODS
 from incipient_slip.models.modelfile import read_model_file
@@ -50,6 +51,7 @@ def test_diagnosis_compares_estimate_label_and_truth_per_period(tmp_path):
     assert set(results["loops"]) == {"injection/0", "e19/0"} and set(results["oracle"]) == {"0"}
     records = json.loads((tmp_path / "diagnosis_records.json").read_text())
     rows = records["oracle"]["0"]
+    assert results["steps"] == control.MAX_STEPS      # the quick preview runs the paper's full loops
     assert len(rows) == results["steps"] and all(0.0 <= r["pseudo"] <= 1.0 for r in rows)
     assert (tmp_path / "figures" / "stab_diagnosis.png").is_file()
     assert "<!-- BEGIN diagnosis-loops -->" in (tmp_path / "stabilization.md").read_text()

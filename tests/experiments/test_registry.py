@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 
 from incipient_slip.experiments import EXPERIMENTS, load
+from incipient_slip.experiments.cli import render_blocks
 from incipient_slip.experiments.docs import markers, replace_blocks
 from incipient_slip.paths import repo_root
 
@@ -27,8 +28,8 @@ def test_every_experiment_has_the_shape(name):
 @pytest.mark.parametrize("name", EXPERIMENTS)
 def test_render_gives_blocks_whose_markers_are_in_the_docs_page(name):
     results = json.loads(json.dumps(SAMPLES[name](), allow_nan=True))     # as --render-only reads them
-    blocks = load(name).render(results)
-    assert blocks and all(isinstance(b, str) and b.strip() for b in blocks.values())
+    blocks = render_blocks(name, results)
+    assert f"{name}-time" in blocks and blocks and all(isinstance(b, str) and b.strip() for b in blocks.values())
     page = docs_page(name).read_text()
     for block in blocks:
         begin, end = markers(block)
@@ -36,8 +37,8 @@ def test_render_gives_blocks_whose_markers_are_in_the_docs_page(name):
 
 
 def test_every_marker_in_the_docs_belongs_to_an_experiment():
-    rendered = {b for name in EXPERIMENTS for b in load(name).render(
-        json.loads(json.dumps(SAMPLES[name](), allow_nan=True)))}
+    rendered = {b for name in EXPERIMENTS for b in render_blocks(
+        name, json.loads(json.dumps(SAMPLES[name](), allow_nan=True)))}
     found = {m for page in (repo_root() / "docs").glob("*.md") for m in MARKER.findall(page.read_text())}
     assert found <= rendered, f"markers no experiment writes: {sorted(found - rendered)}"
 

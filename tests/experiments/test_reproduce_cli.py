@@ -52,7 +52,8 @@ def _docs_copy(tmp_path):
     docs = tmp_path / "docs"
     (docs / "figures").mkdir(parents=True)
     shutil.copy(repo_root() / "docs" / "stabilization.md", docs)
-    shutil.copy(repo_root() / "docs" / "figures" / "stab_results.json", docs / "figures")
+    for results in ("stab_results.json", "reproduce_times.json"):
+        shutil.copy(repo_root() / "docs" / "figures" / results, docs / "figures")
     return docs
 
 

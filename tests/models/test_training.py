@@ -89,7 +89,7 @@ def test_chunked_nystroem_ridge_equals_sklearn_nystroem_plus_ridge():
     np.testing.assert_allclose(rbf_kernel(Z, centers, 0.2) @ w + b, ridge.predict(F), atol=1e-6)
 
 
-def test_grid_search_choice_is_the_same_in_process_and_on_1_and_2_dask_workers(fake_injection_dir, dask_client):
+def test_grid_search_choice_is_the_same_in_process_on_a_local_pool_and_on_1_and_2_dask_workers(fake_injection_dir, dask_client):
     from incipient_slip.models.training import grid_search_svr, svr_grid
     ws = load_windows(fake_injection_dir, feature_spec("e4"), progress=False)
     X, y, g = ws.X.astype(np.float64)[:600], ws.y[:600], ws.series[:600]
@@ -98,3 +98,56 @@ def test_grid_search_choice_is_the_same_in_process_and_on_1_and_2_dask_workers(f
     assert len({r["rmse"] for r in local[1]}) == len(grid)       # the choice is not a tie
     for n in (1, 2):
         assert grid_search_svr(X, y, g, grid, progress=False, client=dask_client(n)) == local
+    assert grid_search_svr(X, y, g, grid, progress=False, workers=2) == local     # a forked local pool
+
+
+def test_with_a_cache_a_repeated_grid_search_and_fit_train_nothing_and_give_the_same(fake_injection_dir, tmp_path,
+                                                                                     monkeypatch):
+    from sklearn.svm import SVR
+
+    from incipient_slip import cache
+    from incipient_slip.models.training import grid_search_svr, svr_grid, train_model
+    ws = load_windows(fake_injection_dir, feature_spec("e4"), progress=False)
+    X, y, g = ws.X.astype(np.float64)[:400], ws.y[:400], ws.series[:400]
+    grid = svr_grid(X.shape[1], quick=True)
+    fits, real_fit = [], SVR.fit
+    monkeypatch.setattr(SVR, "fit", lambda self, *a, **k: fits.append(1) or real_fit(self, *a, **k))
+    plain = grid_search_svr(X, y, g, grid, progress=False)
+    model = train_model(ws, "svr", max_train=300, grid_max=200, quick=True, progress=False).model
+    n_plain = len(fits)
+    with cache.use(tmp_path / "cache"):
+        first = grid_search_svr(X, y, g, grid, progress=False)
+        cached_model = train_model(ws, "svr", max_train=300, grid_max=200, quick=True, progress=False).model
+        assert len(fits) == 2 * n_plain                # the first pass with a cache fits everything
+        again = grid_search_svr(X, y, g, grid, progress=False)
+        again_model = train_model(ws, "svr", max_train=300, grid_max=200, quick=True, progress=False).model
+    assert len(fits) == 2 * n_plain                    # the second fits nothing
+    assert plain == first == again
+    for m in (cached_model, again_model):
+        np.testing.assert_array_equal(m.weights, model.weights)
+        np.testing.assert_array_equal(m.centers, model.centers)
+    assert cache.root() is None                        # off again after the block
+    y2 = y.copy()
+    y2[0] += 0.01
+    with cache.use(tmp_path / "cache"):
+        grid_search_svr(X, y2, g, grid, progress=False)
+    assert len(fits) > 2 * n_plain                     # other data: another key, fitted again
+
+
+def test_with_a_cache_windows_are_computed_once_per_data_set_and_spec(fake_injection_dir, tmp_path, monkeypatch):
+    from incipient_slip import cache
+    from incipient_slip.models import training
+    plain = load_windows(fake_injection_dir, feature_spec("e4"), progress=False)
+    calls, real = [], training.series_features
+    monkeypatch.setattr(training, "series_features", lambda *a, **k: calls.append(1) or real(*a, **k))
+    with cache.use(tmp_path / "cache"):
+        first = load_windows(fake_injection_dir, feature_spec("e4"), progress=False)
+        n = len(calls)
+        again = load_windows(fake_injection_dir, feature_spec("e4"), progress=False)
+        assert len(calls) == n > 0                           # read back, not computed
+        load_windows(fake_injection_dir, feature_spec("e10"), progress=False)
+        assert len(calls) > n                                # another spec is another key
+    for ws in (first, again):
+        np.testing.assert_array_equal(ws.X, plain.X)
+        np.testing.assert_array_equal(ws.y, plain.y)
+        assert ws.data_hash == plain.data_hash

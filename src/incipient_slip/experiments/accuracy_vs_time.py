@@ -39,6 +39,8 @@ from .settings import Settings
 NAME = "accuracy-vs-time"
 HELP = "what accuracy costs in time: sweeps of T, bins, band, model and data size"
 DOC = "accuracy-vs-time.md"
+QUICK = ("10 series (full 500), 4 windows T, 3 bin widths and 2 bands (full 5, 5 and 4), exact SVR on "
+         "at most 1500 windows (full 4000) with a 3-candidate grid, scale study to 2000 windows (full 24000)")
 RESULTS = "avt_results.json"      # in docs/figures/: the page's numbers, for --render-only
 
 
@@ -108,7 +110,7 @@ def fit_point(sweep, label, train, test, kind, params, max_train, n_components=1
     return Point(sweep, label, train.spec.window_s, rmse, top, train_s, lat, int(n))
 
 
-def run_sweeps(data_dir: Path, quick: bool = False, progress: bool = True) -> dict:
+def run_sweeps(data_dir: Path, quick: bool = False, progress: bool = True, workers: int = 1) -> dict:
     """Return {"points": [...], "scale": {...}} for the injection method on data_dir."""
     from incipient_slip.models.training import (grid_search_svr, held_out_series, load_windows,
                                                 split_train_test, subsample_rows, svr_grid)
@@ -128,7 +130,8 @@ def run_sweeps(data_dir: Path, quick: bool = False, progress: bool = True) -> di
     train, test = split_train_test(ws, test_series)
     g = subsample_rows(len(train.y), grid_max)
     params, _ = grid_search_svr(train.X[g].astype(float), train.y[g], train.series[g],
-                                svr_grid(train.X.shape[1], quick), progress=progress, desc="grid T=1")
+                                svr_grid(train.X.shape[1], quick), progress=progress, desc="grid T=1",
+                                workers=workers)
     rbf_params = params if params["kernel"] == "rbf" else {"kernel": "rbf", "C": 1.0,
                                                            "gamma": 1.0 / train.X.shape[1], "epsilon": 0.05}
     points = []
@@ -259,7 +262,7 @@ def run(settings: Settings) -> dict:
     data = study_datasets(settings, n, steps, scenes=("paper",))["paper"]
     load = [os.getloadavg()[0]]
     with limit_blas_threads(settings.jobs):
-        result = run_sweeps(data, quick=settings.quick, progress=settings.progress)
+        result = run_sweeps(data, quick=settings.quick, progress=settings.progress, workers=settings.jobs)
         scale = scale_study(*result.pop("_prepared"), quick=settings.quick, progress=settings.progress)
     load.append(os.getloadavg()[0])
     write_figure(result, settings.figures / "est_pareto.png")

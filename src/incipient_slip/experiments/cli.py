@@ -10,17 +10,18 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import time
 from pathlib import Path
 
+from incipient_slip import cache
 from incipient_slip.errors import UsageError
 from incipient_slip.paths import docs_dir, runs_dir
 
 from . import EXPERIMENTS, load
 from .docs import DocsError, write_blocks
 from .settings import Settings
+from .timing import SIZE_OPTIONS, duration, list_line, load_times, record_time, time_block
 
 COMMON = ("budget", "seed", "out", "docs", "jobs", "quiet", "render_only")
 
@@ -29,8 +30,8 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the options every experiment shares (they fill `Settings`)."""
     budget = parser.add_mutually_exclusive_group()
     budget.add_argument("--quick", dest="budget", action="store_const", const="quick",
-                        help="the quick budget: small sizes, seconds to minutes; writes WORK only "
-                        "(what the tests use)")
+                        help="a preview: fewer runs and series, each run as long as the full one's "
+                        "(`slip reproduce --list` gives each experiment's time); writes WORK only")
     budget.add_argument("--full", dest="budget", action="store_const", const="full",
                         help="the full budget behind the numbers in docs/ (default)")
     parser.set_defaults(budget="full")
@@ -64,6 +65,8 @@ def register(subparsers) -> None:
                            + f" Writes docs/{module.DOC}.")
         add_common_arguments(e)
         module.add_arguments(e)
+    from .reproduce_all import add_all_parser
+    add_all_parser(sub)
 
 
 def settings_from_args(args: argparse.Namespace, module) -> Settings:
@@ -102,35 +105,49 @@ def cmd_reproduce(args) -> int:
     if args.list or args.experiment is None:
         if args.experiment is None and not args.list:
             raise UsageError("name an experiment (slip reproduce --list shows them)")
-        width = max(map(len, EXPERIMENTS))
+        width, times = max(map(len, EXPERIMENTS)), load_times()
         for name in EXPERIMENTS:
             module = load(name)
-            print(f"{name:<{width}}  {module.HELP} (docs/{module.DOC})")
+            print(f"{name:<{width}}  {module.HELP} (docs/{module.DOC}; 2 cores: {list_line(name, times)})")
         return 0
     module = load(args.experiment)
     settings = settings_from_args(args, module)
-    t0 = time.monotonic()
+    t0, load0 = time.monotonic(), os.getloadavg()[0]
+    if settings.quick and not args.render_only:
+        print(f"slip reproduce {args.experiment} --quick: a PREVIEW, not the docs' result: {module.QUICK}",
+              flush=True)
     source = settings.results_file(getattr(module, "RESULTS", None))
     if args.render_only:
         if not source.is_file():
             raise UsageError(f"--render-only needs {source}; run `slip reproduce {args.experiment}` first")
         results = json.loads(source.read_text())
     else:
-        results = module.run(settings)
+        with cache.use(settings.pick(quick=settings.work / "cache", full=runs_dir() / "cache")):
+            results = module.run(settings)
         save_results(results, settings.work / "results.json")
         if source != settings.work / "results.json":
             save_results(results, source)
-    blocks = module.render(results)
+    blocks = render_blocks(args.experiment, results, settings.docs)
     page = (settings.docs / module.DOC) if settings.docs is not None else settings.work / Path(module.DOC).name
     try:
         write_blocks(page, blocks, title=f"{module.HELP} (simulated rig)")
     except DocsError as exc:
         raise UsageError(str(exc)) from exc
     elapsed = time.monotonic() - t0
+    if not args.render_only and not settings.quick and settings.docs is not None and not _resized(args):
+        record_time(args.experiment, "full", elapsed, (load0, os.getloadavg()[0]), settings.docs, settings.jobs)
+        write_blocks(page, time_block(args.experiment, module, load_times(settings.docs)))
     print(f"wrote {len(blocks)} blocks into {page}" + ("" if args.render_only else
-          f" and results to {settings.work / 'results.json'} in {_duration(elapsed)} (simulated rig)"))
+          f" and results to {settings.work / 'results.json'} in {duration(elapsed)} (simulated rig)"))
     return 0
 
 
-def _duration(seconds: float) -> str:
-    return f"{seconds:.0f} s" if seconds < 120 or not math.isfinite(seconds) else f"{seconds / 60:.1f} min"
+def render_blocks(name: str, results: dict, docs: Path | None = None) -> dict[str, str]:
+    """Return the experiment's blocks and its time block (from the times file in `docs`)."""
+    module = load(name)
+    return {**module.render(results), **time_block(name, module, load_times(docs))}
+
+
+def _resized(args: argparse.Namespace) -> bool:
+    """True when the command line changes the experiment's sizes (its time is not the budget's)."""
+    return any(getattr(args, k, None) not in (None, False) for k in SIZE_OPTIONS)

@@ -21,16 +21,20 @@ def data_root(settings: Settings) -> Path:
                                                       full=runs_dir() / "data")))
 
 
-def ensure_dataset(scene: str, n_series: int, seed: int, out_dir: Path, workers: int = 2,
+def ensure_dataset(scene, n_series: int, seed: int, out_dir: Path, workers: int = 2,
                    steps: int = 450, progress: bool = True) -> Path:
-    """Return a data set directory for (scene, n_series, seed, steps), simulating it if needed."""
+    """Return a data set directory for (scene, n_series, seed, steps), simulating it if needed.
+
+    scene: a scene name or a `Scene` (e.g. with a point's parameters). The directory is reused
+    when its meta.json has the same scene, size, seed and physics fingerprint (a hash of the
+    scene, its parameter values and the simulator's code), so no data set is simulated twice."""
     out_dir = Path(out_dir)
-    scene_obj = load_scene(scene)
+    scene_obj = load_scene(scene) if isinstance(scene, str) else scene
     try:
         meta = ds.read_meta(out_dir)
         # Reuse only data made by the same physics: a recalibrated simulator must not be
         # evaluated on the old one's data.
-        if (meta.get("scene") == scene and meta.get("seed") == seed and meta.get("n_series") == n_series
+        if (meta.get("scene") == scene_obj.name and meta.get("seed") == seed and meta.get("n_series") == n_series
                 and meta.get("steps") == steps and len(ds.series_paths(out_dir)) == n_series
                 and meta.get("physics_fingerprint") == physics_fingerprint(scene_obj)):
             return out_dir

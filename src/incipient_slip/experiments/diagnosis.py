@@ -32,6 +32,8 @@ NAME = "diagnosis"
 HELP = "why the closed loop fails on the simulated rig: estimate vs pseudo label vs truth"
 DOC = "stabilization.md"
 SCENE_OF = {"injection": "paper", "e19": "electrodes_only"}
+QUICK = ("rig seed 0 only (full 0 and 5), every loop the full 450 steps, F_T at slip from the "
+         "10-series data set (full 100)")
 METHODS = tuple(SCENE_OF)
 TRAINING_SEED, TRAINING_SERIES = 7, 100      # the shipped models' data set (experiments.models)
 
@@ -162,7 +164,7 @@ def run(settings: Settings) -> dict:
     except ValueError:
         raise UsageError(f"--seeds takes integers separated by commas, got {settings.option('seeds')!r}") from None
     material = settings.option("material", "pla")
-    steps = settings.pick(quick=40, full=control.MAX_STEPS)
+    steps = control.MAX_STEPS      # quick too: the loops end as the full ones do
     limit_blas_threads(1)
     models = {m: load_model(method=m) for m in METHODS}
     data = study_datasets(settings, settings.pick(quick=10, full=TRAINING_SERIES),
@@ -178,7 +180,7 @@ def run(settings: Settings) -> dict:
         res["oracle"][str(seed)] = closed_loop("injection", material, seed, models, ft_slip, steps, oracle=True)
         for tgt in (0.6, 0.3):
             res["step"][f"{seed}/{tgt}"] = force_step(material, seed, models, ft_slip, tgt,
-                                                      max_load=settings.pick(quick=60, full=300))
+                                                      max_load=300)
     records = settings.work / "diagnosis_records.json"
     records.parent.mkdir(parents=True, exist_ok=True)
     records.write_text(json.dumps(res, default=float) + "\n")

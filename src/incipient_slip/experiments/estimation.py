@@ -22,6 +22,9 @@ from .settings import Settings
 NAME = "estimation"
 HELP = "the estimation study: six methods' RMSE and top-10 % RMSE on held-out series"
 DOC = "estimation.md"
+QUICK = ("10 series per data set (full 500), exact SVR on at most 1000 windows (full 8000) "
+         "with a 3-candidate grid (full 28); full 450-period series, both label rules, same six methods "
+         "and tests, with 1 held-out series per material the p-values are weak")
 
 
 def add_arguments(parser) -> None:
@@ -49,10 +52,10 @@ def run(settings: Settings) -> dict:
     dirs = study_datasets(settings, n, steps)
     windows = load_all_windows(dirs, progress=settings.progress)
     kw = dict(quick=settings.quick, max_train=max_train, grid_max=grid_max, windows=windows,
-              progress=settings.progress)
+              progress=settings.progress, workers=settings.jobs)
     study = run_study(dirs, **kw)
     incipient = run_study(dirs, after_slip="drop", **kw)
-    figs = write_figures(study, settings.figures)
+    figs = write_figures(study, settings.figures, injection_windows=windows.get("injection"))
     figs["sorted_incipient"] = fig_sorted(incipient, settings.figures / "est_sorted_incipient.png")
     for r in study.table():
         p_rmse, p_top10 = (f"{p:.2g}" if p is not None else "ref" for p in (r["p_rmse"], r["p_top10"]))
@@ -191,14 +194,16 @@ def fig_band(ws, path: Path) -> tuple[Path, float, float]:
     return save(fig, path), pooled, within
 
 
-def write_figures(study, fig_dir: Path, prefix: str = "est_") -> dict:
+def write_figures(study, fig_dir: Path, prefix: str = "est_", injection_windows=None) -> dict:
+    """Write the study's figures; `injection_windows`: the paper-rule windows of the injection
+    method when already loaded (else they are read again from the data set)."""
     fig_dir.mkdir(parents=True, exist_ok=True)
     figs = {"sorted": fig_sorted(study, fig_dir / f"{prefix}sorted.png"),
             "bars": fig_bars(study, fig_dir / f"{prefix}rmse_bars.png"),
             "material": fig_material(study, fig_dir / f"{prefix}rmse_material.png")}
     if "injection" in study.results:
         from incipient_slip.models.training import load_windows
-        ws = load_windows(study.data_dirs["paper"], feature_spec("injection"), progress=False)
+        ws = injection_windows or load_windows(study.data_dirs["paper"], feature_spec("injection"), progress=False)
         figs["spectrum"] = fig_spectrum(ws, fig_dir / f"{prefix}spectrum.png")
         figs["band"], figs["band_r_pooled"], figs["band_r_within"] = fig_band(ws, fig_dir / f"{prefix}band200_vs_ft.png")
     return figs

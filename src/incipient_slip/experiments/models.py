@@ -17,6 +17,8 @@ from .settings import Settings
 NAME = "models"
 HELP = "regenerate the shipped default models (all six methods, T = 1.0 s)"
 DOC = "estimation.md"
+QUICK = ("10 series per scene (full 100), SVR on at most 500 windows (full 3000) with a "
+         "3-candidate grid; writes WORK/models, never models/")
 SEED = 7
 # Shipped models learn the incipient-slip range (windows up to and including the gross-slip
 # onset, after_slip="drop"): on the simulated rig ~80 % of the paper-rule windows come after the
@@ -55,7 +57,7 @@ def run(settings: Settings) -> dict:
     dirs = study_datasets(settings, b["series"], b["steps"])
     study = run_study(dirs, methods=list(settings.option("methods", METHODS)), quick=settings.quick,
                       max_train=b["max_train"], grid_max=b["grid_max"], progress=settings.progress,
-                      after_slip=AFTER_SLIP)
+                      after_slip=AFTER_SLIP, workers=settings.jobs)
     written = {}
     for m, r in study.results.items():
         r.model.header["after_slip"] = AFTER_SLIP

@@ -14,8 +14,9 @@ BUDGETS = ("quick", "full")
 class Settings:
     """How to run one experiment.
 
-    budget: "quick" (seconds to a few minutes; what tests and CI use; docs untouched unless
-    `docs` is given) or "full" (the numbers in docs/). Each experiment picks its sizes with
+    budget: "quick" (a preview: fewer runs and series, each as long as the full budget's, so the
+    outcome agrees with the full run's; docs untouched unless `docs` is given) or "full" (the
+    numbers in docs/). Each experiment picks its sizes with
     `pick(quick=..., full=...)`, so both budgets of one quantity sit side by side in its module.
     work: where results.json, logs and data go. docs: the docs directory to write into, or None.
     options: the experiment's own command-line options (from its `add_arguments`).

@@ -83,7 +83,7 @@ def add_arguments(parser) -> None:
                                "with --joint, --points defaults to none")
     parser.add_argument("--runs", type=int, help="closed-loop runs per method and point (quick 2, full 10)")
     parser.add_argument("--series", type=int, help="training series per data set and point (quick 30, full 100)")
-    parser.add_argument("--steps", type=int, help=f"steps of a run (quick 60, full {control.MAX_STEPS})")
+    parser.add_argument("--steps", type=int, help=f"steps of a run (default {control.MAX_STEPS}, the paper's, on both budgets)")
     parser.add_argument("--sweep-at", dest="sweep_at", nargs="+", metavar="JOINT_POINT",
                         help="run these joint points again with the s_d sweep (--sweep-runs, default 3) and put "
                              "them into the joint results kept with --keep (names as in docs/validation.md, "
@@ -158,14 +158,32 @@ CONTROLLED = tuple(m for m in TABLE_METHODS if m != "none") + ("oracle",)   # th
 # only when the first cannot meet T1-T4 (an open-loop rule, the same for every point)
 REFITS = ((25, 2, 25), (50, 3, 40))
 SWEEP_METHODS = ("injection", "e19", "e10", "e4", "oracle")
+# the quick preview: four points (the fitted one and one end of each refitted parameter), one refit
+# of at most 10 evaluations; every run the full 450 steps
+QUICK_POINTS = ("fitted", "beta 1.25", "mu spread 1", "lag 1 s")
+QUICK_REFITS = ((25, 2, 10),)
+QUICK = ("4 of the 9 points (fitted, beta 1.25, mu spread 1, lag 1 s), each refitted once with at most 10 "
+         "evaluations (full 25, then 40 when T1-T4' are missed), 30 training series per data set (full 100), "
+         "2 runs per method (full 10), every run the full 450 steps; a point's consistency verdict can "
+         "differ from the full run's")
 
 
 def refit_task(name: str, overrides: dict, seed: int, refits=None) -> dict:
-    """Return the point's stage-1 refit to T1-T4' and T7 and whether it meets them (docs/calibration.md)."""
+    """Return the point's stage-1 refit to T1-T4' and T7 and whether it meets them (docs/calibration.md);
+    from the content-hashed cache (`incipient_slip.cache`) when the same refit of the same physics
+    and code was done before."""
+    from incipient_slip import cache
+    from incipient_slip.sim.dataset import physics_fingerprint
     from incipient_slip.sim.scene import load_scene
 
-    t0 = time.perf_counter()
     scene = cal.with_values(load_scene("paper"), {tuple(k.split(".")): v for k, v in overrides.items()})
+    key = cache.digest("refit-1", name, physics_fingerprint(scene), seed, refits or REFITS,
+                       cache.source_version(Path(cal.__file__)))
+    return cache.cached("refit", key, lambda: _refit(name, overrides, scene, seed, refits))
+
+
+def _refit(name: str, overrides: dict, scene, seed: int, refits) -> dict:
+    t0 = time.perf_counter()
     n = 0
     for n_fit, runs_fit, evals in refits or REFITS:   # a second, larger refit only when the first misses T1-T4
         fit = cal.fit_mechanics(scene, n_fit, runs_fit, seed, evals, progress=False, stiffness_only=True)
@@ -221,8 +239,8 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
     from incipient_slip.sim.scene import load_scene
     from incipient_slip.models.estimator_core import limit_blas_threads
     from incipient_slip.models.pipeline import run_study
-    from incipient_slip.sim.dataset import write_dataset
 
+    from .datasets import ensure_dataset
     limit_blas_threads(1)
     t0 = time.perf_counter()
     if params is not None:
@@ -235,12 +253,9 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
     summ, consistent = fit["summary"], fit["consistent"]
     d = Path(work) / _slug(name)
     dirs = {}
-    for sname in ("paper", "no_injection"):
-        out = d / sname
-        for stale in out.glob("series_*.npz"):
-            stale.unlink()
-        write_dataset(_scene(sname, scene.params), n_series, seed + 1, out, workers=1, progress=False)
-        dirs[sname] = out
+    for sname in ("paper", "no_injection"):     # reused when the same physics made it before
+        dirs[sname] = ensure_dataset(_scene(sname, scene.params), n_series, seed + 1, d / sname, workers=1,
+                                     progress=False)
     study = run_study(dirs, quick=True, max_train=2000, grid_max=600, progress=False)
     models = {m: r.model for m, r in study.results.items()}
     mats = tuple(materials) if materials else scene.materials
@@ -256,7 +271,7 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
     trajectory = (trajectory_figure(scene.params, models, mats[0], series_seed(seed + 2, 0), Path(fig_dir))
                   if fig_dir and name == "fitted" else None)
     return {"point": name, "overrides": overrides, "fit": {"values": fit["values"], "summary": summ,
-                                                           "refits": fit["refits"]},
+                                                           "refits": fit["refits"], "seconds": fit.get("seconds")},
             "trajectory": trajectory,
             "sweep": sweep,
             "consistent": consistent, "rmse": {m: float(r.scores.rmse.mean()) for m, r in study.results.items()},
@@ -274,15 +289,24 @@ def summarize(runs: list) -> dict:
             "score": control.score(rate or 0.0, max(y, 1e-6), max(fn, 1e-6))}
 
 
+def budget(settings) -> dict:
+    """Return the points, runs, series, steps and refits of the budget (the options override them)."""
+    opt = settings.option
+    return {"points": opt("points", [] if (opt("joint", False) or opt("sweep_at"))
+                          else list(settings.pick(QUICK_POINTS, POINTS))),
+            "runs": opt("runs", settings.pick(2, 10)), "series": opt("series", settings.pick(30, 100)),
+            "steps": opt("steps", control.MAX_STEPS),      # quick too: shorter runs would all "succeed"
+            "refits": opt("refits", settings.pick(QUICK_REFITS, None))}
+
+
 def run(settings) -> dict:
     """Run every point of the uncertainty set on dask and return the Tables."""
     from dask.distributed import as_completed
 
     opt = settings.option
     joint = bool(opt("joint", False))
-    names = opt("points", [] if (joint or opt("sweep_at")) else list(POINTS))
-    runs, n_series = opt("runs", settings.pick(2, 10)), opt("series", settings.pick(30, 100))
-    steps = opt("steps", settings.pick(60, control.MAX_STEPS))
+    b = budget(settings)
+    names, runs, n_series, steps, refits = (b[k] for k in ("points", "runs", "series", "steps", "refits"))
     for label, v in (("--runs", runs), ("--series", n_series), ("--steps", steps)):
         if v < 1:
             raise UsageError(f"{label} must be >= 1, got {v}")
@@ -325,7 +349,7 @@ def run(settings) -> dict:
         else:                 # a joint point's Table has no sweep unless it is --sweep-at
             sweep = 0 if name in grid else opt("sweep_runs", 0)
         return client.submit(point_task, name, overrides, runs, n_series, steps, settings.seed, str(work),
-                             sweep, opt("refits"), fit, str(settings.figures) if settings.figures else None,
+                             sweep, refits, fit, str(settings.figures) if settings.figures else None,
                              rig_points.get(name), rig_materials,
                              key=f"validation-{_slug(name)}-{settings.seed}-sweep{sweep}",
                              pure=False)
@@ -333,7 +357,7 @@ def run(settings) -> dict:
     done, joint_done, refit_only = {}, {}, {}
     with open_client(scheduler, opt("workers", settings.jobs)) as client:
         futures = [table_future(n, POINTS.get(n, {})) for n in names] + [table_future(n, grid[n]) for n in sweep_at]
-        futures += [client.submit(refit_task, n, ov, settings.seed, opt("refits"),
+        futures += [client.submit(refit_task, n, ov, settings.seed, refits,
                                   key=f"refit-{_slug(n)}-{settings.seed}", pure=False)
                     for n, ov in (grid.items() if joint else ()) if n not in sweep_at]
         total, i = len(futures), 0
@@ -616,6 +640,24 @@ def render_answer(results: dict) -> str:
     return "\n".join(lines)
 
 
+def task_times(pts: dict, cores: int = 16) -> str:
+    """Return the joint set's per-task times (one single-threaded dask worker each) and what they
+    add up to on 2 workers and on a `cores`-core cluster (where the longest task sets the time)."""
+    refits = [p["fit"]["seconds"] for p in pts.values() if (p.get("fit") or {}).get("seconds")]
+    tables = [p["seconds"] for p in pts.values() if p.get("table") and p.get("seconds")]
+    if not refits and not tables:
+        return "(no per-task times recorded)"
+    span = lambda v: f"{min(v):.0f}–{max(v):.0f} s (sum {sum(v) / 60:.1f} min)" if v else "–"  # noqa: E731
+    longest = max(refits or [0.0]) + max(tables or [0.0])
+    return (f"Per-task times (simulated rig; one single-threaded dask worker per task, on the shared 2-core "
+            f"machine): refits {span(refits)} for {len(refits)} of {len(pts)} points"
+            + ("" if len(refits) == len(pts) else " (the others' refit time was not recorded by that run)")
+            + f"; Tables {span(tables)} for {len(tables)} points. On 2 workers the recorded tasks take at least "
+            f"{(sum(refits) + sum(tables)) / 2 / 60:.0f} min; on a {cores}-core cluster every point runs at once "
+            f"and the longest refit plus the longest Table, {longest / 60:.0f} min, bounds the set "
+            "(a refit is one Nelder-Mead fit, sequential; `--scheduler tcp://HOST:PORT` uses such a cluster).")
+
+
 def _render_joint(results: dict, head: str, methods: list) -> str:
     """Return the joint set's block: which points the open-loop data allow, and the Table there."""
     joint = results["joint"]
@@ -638,6 +680,7 @@ def _render_joint(results: dict, head: str, methods: list) -> str:
         v = p["fit"]["values"]
         lines.append(f"| {n} | {v['pre_slip.bulk_shear_n_per_mm']:.3f} | {v['stick_slip.spring_n_per_mm']:.4f} | "
                      + " | ".join(_outcome(p['table'][m]) for m in methods) + " |")
+    lines += ["", task_times(pts)]
     if results.get("joint_figure"):
         f = results["joint_figure"]
         lines += ["", f"![simulated rig: success over the joint uncertainty set](figures/{f})",

@@ -68,12 +68,13 @@ def load_all_windows(data_dirs: dict, methods=METHODS, window_s: float = 1.0, pr
 def run_study(data_dirs: dict, methods=METHODS, kind: str = "svr", quick: bool = False,
               max_train: int | None = 6000, grid_max: int = 2000, window_s: float = 1.0,
               after_slip: str = "zero", progress: bool = True, windows: dict | None = None,
-              client=None) -> StudyResult:
+              client=None, workers: int = 1) -> StudyResult:
     """Train and evaluate each method on its data set with one shared held-out series set.
 
     data_dirs: {"paper": dir with injection, "no_injection": dir without}.
     windows: preloaded `load_all_windows` result (paper's rule), reused across label policies.
-    client: a dask Client for the grid searches' fits (training.grid_search_svr).
+    client: a dask Client for the grid searches' fits (training.grid_search_svr); workers: local
+    processes for them instead (the same models: every fit is deterministic).
     """
     t0 = time.perf_counter()
     methods = list(methods)
@@ -98,7 +99,7 @@ def run_study(data_dirs: dict, methods=METHODS, kind: str = "svr", quick: bool =
     for m in tqdm(methods, desc="train", disable=not progress, leave=False):
         train, test = split_train_test(windows[m], test_series)
         tr = train_model(train, kind, max_train=max_train, grid_max=grid_max, quick=quick,
-                         progress=progress, client=client)
+                         progress=progress, client=client, workers=workers)
         pred = tr.model.predict(test.X)
         sc = series_scores(m, test.y, pred, test.series, test.material)
         tr.model.header["test_series"] = [int(v) for v in test_series]

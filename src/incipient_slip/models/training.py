@@ -79,11 +79,24 @@ def load_windows(data_dir: str | Path, spec: FeatureSpec, min_window_s: float | 
     "drop" keeps windows up to and including the gross-slip onset only (incipient slip range).
     label: "pseudo" (the paper's rule) or "true-ratio" (EXTENSION: the simulator's
     load_ratio_stick, see labels.training_labels); the windows kept are the same for both.
+    With a cache on (`incipient_slip.cache`) the windows are stored under a key of the data set's
+    content hash, the spec, these options and the code of models/, and read back next time.
     """
     if label not in LABELS:
         raise ValueError(f"label {label!r} unknown; expected one of {', '.join(LABELS)}")
     if after_slip not in AFTER_SLIP:
         raise ValueError(f"after_slip {after_slip!r} unknown; expected one of {AFTER_SLIP}")
+    from .. import cache
+    if cache.root() is None:
+        return _load_windows(data_dir, spec, min_window_s, progress, after_slip, label)
+    key = cache.digest("windows-1", ds.dataset_hash(data_dir), repr(spec), min_window_s, after_slip, label,
+                       cache.source_version(Path(__file__).parent))
+    return cache.cached("windows", key, lambda: _load_windows(data_dir, spec, min_window_s, progress, after_slip,
+                                                              label))
+
+
+def _load_windows(data_dir, spec: FeatureSpec, min_window_s, progress: bool, after_slip: str,
+                  label: str) -> WindowSet:
     meta = ds.read_meta(data_dir)
     if spec.stream == "pac" and spec.injection is not None and bool(meta.get("injection", True)) != spec.injection:
         raise ds.DatasetError(
@@ -181,28 +194,75 @@ def svr_grid(n_features: int, quick: bool = False) -> list[dict]:
 
 
 def _fit_svr(Z, y, params, cache_mb=500):
+    """Return an SVR fitted on (Z, y); from the content-hashed cache when one is on (`cache`)."""
+    import sklearn
     from sklearn.svm import SVR
+
+    from .. import cache
     p = dict(params)
-    return SVR(cache_size=cache_mb, **p).fit(Z, y)
+    return cache.cached("svr-fit", cache.digest("svr-fit-1", sklearn.__version__, Z, y, p),
+                        lambda: SVR(cache_size=cache_mb, **p).fit(Z, y))
 
 
-def _fold_mse(Z, y, tr, va, params) -> float:
-    """Return the validation MSE of one SVR candidate fitted on one grouped fold (a grid task)."""
-    m = _fit_svr(Z[tr], y[tr], params)
-    return float(np.mean((np.clip(m.predict(Z[va]), 0, 1) - y[va]) ** 2))
+def _fold_mse(Z, y, tr, va, params, zy_key: str = "") -> float:
+    """Return the validation MSE of one SVR candidate fitted on one grouped fold (a grid task);
+    cached by (`zy_key` = the digest of Z and y, the fold, the parameters) when a cache is on."""
+    import sklearn
+    from sklearn.svm import SVR
+
+    from .. import cache
+
+    def mse():
+        m = SVR(cache_size=500, **dict(params)).fit(Z[tr], y[tr])
+        return float(np.mean((np.clip(m.predict(Z[va]), 0, 1) - y[va]) ** 2))
+    if not zy_key or cache.root() is None:
+        return mse()
+    return cache.cached("svr-fold", cache.digest("svr-fold-1", sklearn.__version__, zy_key, tr, va, dict(params)), mse)
 
 
-def grid_search_svr(X, y, groups, grid, n_folds=3, progress=True, desc="grid", client=None):
+_SHARED: tuple = ()      # (Z, y, their cache key) of the grid search a forked pool's workers inherit
+
+
+def _shared_fold_mse(cell) -> float:
+    params, tr, va = cell
+    Z, y, zy_key = _SHARED
+    return _fold_mse(Z, y, tr, va, params, zy_key)
+
+
+def _pool_mse(Z, y, zy_key, cells, workers: int, bar) -> list[float]:
+    """Return the fold MSEs of `cells` from `workers` forked processes (Z and y inherited, not sent)."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+    global _SHARED
+    _SHARED = (Z, y, zy_key)
+    try:
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as pool:
+            out = []
+            for v in pool.map(_shared_fold_mse, cells):
+                out.append(v)
+                bar.update()
+            return out
+    finally:
+        _SHARED = ()
+
+
+def grid_search_svr(X, y, groups, grid, n_folds=3, progress=True, desc="grid", client=None, workers: int = 1):
     """Return (best params, rows of {params, rmse}) by grouped k-fold RMSE on standardized X.
 
     client: a dask Client (`cluster.open_client`): the candidate x fold fits run there as tasks.
+    workers: without a client, fit the cells in this many forked local processes (1: in process).
     Every fit is deterministic, so the rows and the choice do not depend on where they ran."""
     mean, scale = _standardize(X)
     Z = (X - mean) / scale
     folds = list(grouped_folds(groups, n_folds))
     cells = [(params, tr, va) for params in grid for tr, va in folds]
-    if client is None:
-        mse = [_fold_mse(Z, y, tr, va, params)
+    from .. import cache
+    zy_key = cache.digest(Z, y) if cache.root() is not None else ""
+    if client is None and workers > 1:
+        with tqdm(total=len(cells), desc=desc, unit="fit", disable=not progress, leave=False) as bar:
+            mse = _pool_mse(Z, y, zy_key, cells, workers, bar)
+    elif client is None:
+        mse = [_fold_mse(Z, y, tr, va, params, zy_key)
                for params, tr, va in tqdm(cells, desc=desc, unit="fit", disable=not progress, leave=False)]
     else:
         Zf, yf = client.scatter([Z, y])
@@ -275,11 +335,12 @@ class TrainResult:
 
 def train_model(ws: WindowSet, kind: str = "svr", max_train: int | None = 6000,
                 grid_max: int = 2000, n_components: int = 1000, quick: bool = False,
-                progress: bool = True, params: dict | None = None, client=None) -> TrainResult:
+                progress: bool = True, params: dict | None = None, client=None, workers: int = 1) -> TrainResult:
     """Return a Model trained on all rows of `ws` (the caller removes the test series first).
 
     params: skip the grid and use these SVR parameters (kind svr / gamma for nystroem).
-    client: a dask Client to run the grid search's fits on (grid_search_svr).
+    client: a dask Client to run the grid search's fits on (grid_search_svr); workers: local
+    processes for them instead (same rows and choice).
     """
     if kind not in KINDS:
         raise ValueError(f"kind {kind!r} unknown; expected one of {', '.join(KINDS)}")
@@ -292,7 +353,7 @@ def train_model(ws: WindowSet, kind: str = "svr", max_train: int | None = 6000,
         n_folds = min(3, len(np.unique(groups[g])))
         params, grid_rows = grid_search_svr(X[g], y[g], groups[g], svr_grid(X.shape[1], quick),
                                             n_folds=n_folds, progress=progress,
-                                            desc=f"grid {ws.spec.method}", client=client)
+                                            desc=f"grid {ws.spec.method}", client=client, workers=workers)
     report["grid"] = grid_rows
     if kind == "svr":
         rows = subsample_rows(len(y), max_train)

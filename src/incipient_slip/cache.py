@@ -1,0 +1,108 @@
+"""A content-hashed cache of deterministic results on disk, so reruns never compute them twice.
+
+An entry's key is a SHA-256 over everything its result depends on (the data's bytes, the
+parameters, the library and code versions the caller names), so a change of any of them is a
+different key: nothing is ever invalidated, a stale entry is simply never asked for again. The
+cache is on only where a directory is given, by `use(directory)` around a run (`slip reproduce`
+uses runs/cache, and WORK/cache on the quick budget) or SLIP_CACHE_DIR in the environment; code
+that runs without one (tests, library calls) computes everything. `rm -rf runs/cache` empties it.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import pickle
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Callable, TypeVar
+
+import numpy as np
+
+T = TypeVar("T")
+ENV = "SLIP_CACHE_DIR"
+
+
+def root() -> Path | None:
+    """Return the cache directory in use, or None (cache off)."""
+    value = os.environ.get(ENV, "")
+    return Path(value) if value else None
+
+
+@contextmanager
+def use(directory: Path | None):
+    """Turn the cache on at `directory` (None: leave as it is) for the block, and for the processes
+    started in it (the environment is inherited); restore the previous setting afterwards."""
+    if directory is None:
+        yield
+        return
+    old = os.environ.get(ENV)
+    os.environ[ENV] = str(directory)
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop(ENV, None)
+        else:
+            os.environ[ENV] = old
+
+
+def digest(*parts: Any) -> str:
+    """Return the SHA-256 hex digest of `parts` (arrays by dtype, shape and bytes; dicts by sorted
+    keys; lists and tuples item by item; anything else by its JSON or repr)."""
+    h = hashlib.sha256()
+
+    def add(x):
+        if isinstance(x, np.ndarray):
+            a = np.ascontiguousarray(x)
+            h.update(f"nd{a.dtype.str}{a.shape}".encode())
+            h.update(a.tobytes())
+        elif isinstance(x, dict):
+            h.update(b"{")
+            for k in sorted(x, key=str):
+                add(str(k))
+                add(x[k])
+            h.update(b"}")
+        elif isinstance(x, (list, tuple)):
+            h.update(b"[")
+            for v in x:
+                add(v)
+            h.update(b"]")
+        else:
+            h.update(json.dumps(x, default=repr).encode() if isinstance(x, (str, int, float, bool, type(None)))
+                     else repr(x).encode())
+            h.update(b";")
+    for p in parts:
+        add(p)
+    return h.hexdigest()
+
+
+def source_version(*paths: Path) -> str:
+    """Return a short hash of source files (each path a file or a directory of *.py files)."""
+    h = hashlib.sha256()
+    for path in paths:
+        files = sorted(Path(path).glob("*.py")) if Path(path).is_dir() else [Path(path)]
+        for f in files:
+            h.update(f.name.encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def cached(kind: str, key: str, compute: Callable[[], T]) -> T:
+    """Return the stored result of `kind`/`key`, or compute, store and return it (cache off: compute)."""
+    base = root()
+    if base is None:
+        return compute()
+    path = base / kind / key[:2] / f"{key}.pkl"
+    try:
+        with open(path, "rb") as f:
+            return pickle.load(f)
+    except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError):
+        pass
+    value = compute()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp")
+    with open(tmp, "wb") as f:
+        pickle.dump(value, f, protocol=pickle.HIGHEST_PROTOCOL)
+    os.replace(tmp, path)
+    return value
