@@ -1,7 +1,9 @@
-"""`slip node list|info`, `slip topic info` and `slip topic pub`: the ROS 2 habits, over discovery.
+"""`slip node list|info`, `slip param list|get|dump`, `slip topic info` and `slip topic pub`: the
+ROS 2 habits, over discovery.
 
-The first three read the nodes' announcement files (graph/discovery.py): who runs, what each
-publishes and subscribes. `topic pub` builds one message from YAML, validated by the messages
+All but `topic pub` read the nodes' announcement files (graph/discovery.py): who runs, what each
+publishes and subscribes, and each node's parameters as resolved at its start (defaults < launch
+file < command line; read-only: a running node's parameters cannot be set). `topic pub` builds one message from YAML, validated by the messages
 contract (field names, types, bounds, array shapes), and publishes it from a small node once the
 topic's live readers have subscribed. Commands are refused (`--force` overrides): a message on a
 command topic moves hardware or changes the run, and on a graph with real devices any message
@@ -17,14 +19,15 @@ import yaml
 
 from incipient_slip.errors import UsageError
 from incipient_slip.graph import discovery
+from incipient_slip.graph.params import format_value
 from incipient_slip.graph.runtime import ANY_TOPIC, Node
 from incipient_slip.messages import (
     DEFAULT_TOPICS, MESSAGE_TYPES, ActuatorCommand, GripCommand, Message, MessageError, PztCommand,
     RobotRecover, to_plain,
 )
 
-__all__ = ["cmd_node_list", "cmd_node_info", "cmd_topic_info", "cmd_topic_pub", "COMMAND_TOPICS",
-           "DEVICE_NODES"]
+__all__ = ["cmd_node_list", "cmd_node_info", "cmd_param_list", "cmd_param_get", "cmd_param_dump",
+           "cmd_topic_info", "cmd_topic_pub", "COMMAND_TOPICS", "DEVICE_NODES"]
 
 # topics whose readers move the rig or change the run
 COMMAND_TOPICS = frozenset(t.TOPIC for t in (GripCommand, ActuatorCommand, PztCommand, RobotRecover))
@@ -55,13 +58,18 @@ def cmd_node_list(args) -> int:
     return 0
 
 
-def cmd_node_info(args) -> int:
-    """Prints one node's pid, endpoint, publications and subscriptions."""
+def _named(args) -> list[discovery.NodeInfo]:
+    """The running processes of node `args.node` (UsageError when there is none)."""
     found = [i for i in _nodes(args) if i.name == args.node]
     if not found:
         raise UsageError(f"no node {args.node!r} in graph {discovery.graph_dir(args.graph)} "
                          f"(slip node list shows the running ones)")
-    for info in found:
+    return found
+
+
+def cmd_node_info(args) -> int:
+    """Prints one node's pid, endpoint, publications and subscriptions."""
+    for info in _named(args):
         if args.json:
             print(json.dumps(_plain(info)))
             continue
@@ -71,6 +79,38 @@ def cmd_node_info(args) -> int:
         print("  subscribes:")
         for topic, type_name in sorted(info.subscribes.items()):
             print(f"    {'(every topic)' if topic == ANY_TOPIC else topic}: {type_name}")
+    return 0
+
+
+def cmd_param_list(args) -> int:
+    """Prints the names of a running node's parameters, one a line."""
+    for info in _named(args):
+        print(json.dumps(sorted(info.params)) if args.json else "\n".join(sorted(info.params)))
+    return 0
+
+
+def cmd_param_get(args) -> int:
+    """Prints one parameter of a running node, as `name:=VALUE` would give it."""
+    found = _named(args)
+    for info in found:
+        if args.name not in info.params:
+            raise UsageError(f"node {info.name} (pid {info.pid}) has no parameter {args.name!r}; "
+                             f"its parameters: {', '.join(sorted(info.params)) or '(none)'}")
+        value = info.params[args.name]
+        text = json.dumps(value) if args.json else format_value(value)
+        print(f"{text}  (pid {info.pid})" if len(found) > 1 else text)
+    return 0
+
+
+def cmd_param_dump(args) -> int:
+    """Prints every parameter of a running node as YAML (`name: value`), or as one JSON object."""
+    for info in _named(args):
+        if args.json:
+            print(json.dumps({"name": info.name, "pid": info.pid, "params": info.params}))
+            continue
+        print(f"# {info.name} (pid {info.pid}): parameters as resolved at its start")
+        print(yaml.safe_dump(info.params, sort_keys=True, default_flow_style=False).rstrip()
+              if info.params else "{}")
     return 0
 
 
@@ -190,3 +230,31 @@ def register_node(subparsers, graph, guard) -> None:
     p.add_argument("node", help="node name, e.g. estimator")
     p.add_argument("--json", action="store_true", help="one JSON object per process of that name")
     p.set_defaults(func=guard(cmd_node_info))
+
+
+def register_param(subparsers, graph, guard) -> None:
+    """Adds `slip param list|get|dump` (read-only: there is no `set`)."""
+    param = subparsers.add_parser(
+        "param", help="the parameters of a running node (read-only)",
+        description="A running node's parameters as it resolved them at its start (its defaults < "
+        "the launch file < its command line), read from its announcement in the graph directory. "
+        "Read-only: a node reads its parameters once; change them in the launch file or on the "
+        "command line and restart it.")
+    psub = param.add_subparsers(dest="tool", metavar="TOOL", required=True)
+    p = psub.add_parser("list", parents=[graph], help="a node's parameter names")
+    p.add_argument("node", help="node name, e.g. grip_controller")
+    p.add_argument("--json", action="store_true", help="one JSON list per process of that name")
+    p.set_defaults(func=guard(cmd_param_list))
+    p = psub.add_parser("get", parents=[graph], help="one parameter's value",
+                        description="Prints the value of parameter NAME of node NODE, as "
+                        "`NAME:=VALUE` on a node's command line would give it.")
+    p.add_argument("node", help="node name, e.g. grip_controller")
+    p.add_argument("name", help="parameter name, e.g. s_d")
+    p.add_argument("--json", action="store_true", help="the value as JSON")
+    p.set_defaults(func=guard(cmd_param_get))
+    p = psub.add_parser("dump", parents=[graph], help="all of a node's parameters as YAML",
+                        description="Prints every parameter of node NODE as YAML (name: value, "
+                        "sorted by name) after a comment line naming the node and its pid.")
+    p.add_argument("node", help="node name, e.g. grip_controller")
+    p.add_argument("--json", action="store_true", help="one JSON object per process of that name")
+    p.set_defaults(func=guard(cmd_param_dump))

@@ -297,7 +297,8 @@ class Node:
         self._sub_recv = self._sub.recv_multipart
         self._rcvtimeo = -1
         self._info = discovery.NodeInfo(self.name, os.getpid(), endpoint, started_ns=time.time_ns(),
-                                        pidns=discovery.namespace("pid"), netns=discovery.namespace("net"))
+                                        pidns=discovery.namespace("pid"), netns=discovery.namespace("net"),
+                                        params=dict(self.params))   # for `slip param`
         self._discovery = discovery.Discovery(self._dir, log=lambda text: self.warn(text))
         self._connected: set[str] = set()
         self._retiring: dict[str, float] = {}   # endpoint -> monotonic time to disconnect

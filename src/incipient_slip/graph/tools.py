@@ -338,6 +338,7 @@ def register(subparsers) -> None:
     p.set_defaults(func=_guard(cmd_topic_hz))
     introspect.register_topic(tsub, graph, _guard)
     introspect.register_node(subparsers, graph, _guard)
+    introspect.register_param(subparsers, graph, _guard)
 
     bag = subparsers.add_parser(
         "bag", help="record, play, inspect, recover and export MCAP recordings",
