@@ -18,7 +18,9 @@ import time
 from incipient_slip.errors import EXIT_USAGE, UsageError
 from incipient_slip.graph import discovery
 from incipient_slip.graph.bag_export import AUDIO_RATE_HZ
-from incipient_slip.graph.live_view import EXTRA_HINT, LiveView, is_loopback
+from incipient_slip.graph.live_view import (
+    AUDIO_BLOCK_FRAMES, EXTRA_HINT, PAC_VIEW_HZ, LiveView, is_loopback,
+)
 from incipient_slip.graph.params import Param
 from incipient_slip.graph.runtime import ANY_TOPIC, POLL_S, Node, run_node
 from incipient_slip.messages import PAC_RATE_HZ, Message, MessageError
@@ -33,6 +35,11 @@ class FoxgloveBridge(Node):
               "backlog": Param(1024, lo=1, help="messages queued per client; the oldest go first"),
               "audio_rate_hz": Param(AUDIO_RATE_HZ, lo=PAC_RATE_HZ,
                                      help=f"P_AC audio rate: a multiple of {PAC_RATE_HZ} Hz"),
+              "audio_block_frames": Param(AUDIO_BLOCK_FRAMES, lo=1, help="P_AC frames per audio "
+                                          "message (10 = 100 ms)"),
+              "pac_view_hz": Param(PAC_VIEW_HZ, lo=0.0, help="P_AC frames a second (of their "
+                                   "stamps) on the BiotacPac channel; 0 = every frame (the audio "
+                                   "channel always has every sample)"),
               "wait_for_client_s": Param(0.0, lo=0.0, help="hold this node's start (and a launch's "
                                          "sources) until a viewer subscribes, at most this long"),
               "priority": Param("low", choices=("idle", "low", "normal"),
@@ -51,7 +58,9 @@ class FoxgloveBridge(Node):
             self.warn(f"serving on {host}, not the loopback address: anyone who reaches it sees "
                       f"the whole graph (the Foxglove WebSocket protocol has no authentication)")
         self.view = LiveView(host, self.param("port"), backlog=self.param("backlog"),
-                             audio_rate_hz=self.param("audio_rate_hz"))
+                             audio_rate_hz=self.param("audio_rate_hz"),
+                             pac_view_hz=self.param("pac_view_hz"),
+                             audio_block_frames=self.param("audio_block_frames"))
         self.on_shutdown(self.view.close)
         self.log(f"serving ws://{host}:{self.view.port} (read-only)")
         self.create_raw_subscription(self.on_message)
@@ -86,11 +95,26 @@ class FoxgloveBridge(Node):
 
 
 def lower_priority(priority: str) -> None:
-    """Puts this process (its threads started from now on) below the graph's nodes."""
+    """Puts this process (its threads started from now on) below the graph's nodes.
+
+    Linux's scheduler shares the CPU between session groups ("autogroups", when the kernel has
+    them on and the process is in the root CPU cgroup) before it shares a group's time between its
+    processes by nice: a bridge alone in its session (a node started with `setsid`, as
+    `bench/bench_loop.py` and some supervisors do) would weigh as much as each of the loop's
+    nodes whatever its own nice. So when this process leads its session, its group's nice is
+    lowered as well; a bridge in a shared session (a launch's, a terminal's) leaves that alone."""
+    if priority == "normal":
+        return
     if priority == "idle" and hasattr(os, "SCHED_IDLE"):
         os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
-    elif priority in ("idle", "low"):       # no SCHED_IDLE (not Linux): nice is what there is
+    else:                                   # no SCHED_IDLE (not Linux): nice is what there is
         os.nice(10)
+    if os.getsid(0) == os.getpid():
+        try:
+            with open("/proc/self/autogroup", "w") as f:
+                f.write("19" if priority == "idle" else "10")
+        except OSError:                     # no autogroups here, or not allowed: nothing to do
+            pass
 
 
 def main(argv=None):
