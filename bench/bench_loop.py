@@ -19,7 +19,8 @@ rig -> estimator -> controller -> rig, with decode and dispatch). Last line: `lo
 
 `--viewer stalled` adds the viewer bridge (nodes/foxglove_bridge.py) as a third process and one
 WebSocket client that subscribes to every channel and then never reads again: the cost a
-stalled Foxglove puts on the loop (docs/performance.md, "Live view").
+stalled Foxglove puts on the loop (docs/performance.md, "Live view"); `--viewer attached`: the
+bridge with no client (it then receives nothing but announcements).
 """
 from __future__ import annotations
 
@@ -202,14 +203,17 @@ def main(argv=None) -> int:
         rig = BenchRig(directory, pac)
         rig.gap_s = args.gap_ms / 1000.0
         # handshakes: the nodes subscribed to what we publish, and we hear them
-        readers = 1 if args.viewer == "none" else 2
         for pub in (rig.pac_pub, rig.tick_pub):
-            if not pub.wait_for_subscribers(readers, 30):
-                raise SystemExit(f"bench-loop: fewer than {readers} subscribers to {pub.topic}")
+            if not pub.wait_for_subscribers(1, 30):
+                raise SystemExit(f"bench-loop: no subscriber to {pub.topic}")
         names = {"estimator", "grip_controller"} | ({"foxglove_bridge"} if args.viewer != "none" else set())
         rig.wait(lambda: names <= rig.heard, 30, "node heartbeats")
         if args.viewer == "stalled":
             viewer = stalled_viewer(rig, bridge_url(procs[-1]))
+            # the bridge receives a topic only while a client watches it: now it does
+            for pub in (rig.pac_pub, rig.tick_pub):
+                if not pub.wait_for_subscribers(2, 30):
+                    raise SystemExit(f"bench-loop: the bridge did not subscribe to {pub.topic}")
         rig.pzt_pub.publish(PztState(enabled=True, stamp_ns=1))
         total = args.warmup + args.periods
         t_start = time.monotonic()

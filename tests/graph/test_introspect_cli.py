@@ -123,3 +123,16 @@ def test_param_get_prints_one_value_as_a_command_line_would_give_it(graph, probe
 def test_params_are_read_only_from_the_tool(graph, probe, controller):
     code, out, err = slip(graph, probe, "param", "set", "grip_controller", "s_d", "0.9")
     assert code == 2 and "invalid choice: 'set'" in err, err
+
+
+def test_topic_pub_does_not_wait_for_a_reader_on_demand_and_info_marks_it(graph, probe):
+    from incipient_slip.graph.runtime import Node
+    with Node("foxglove_bridge", graph_dir=graph.dir, heartbeat_s=0) as bridge:   # as the bridge reads
+        bridge.create_raw_subscription(lambda topic, body, ns: None)
+        bridge.receive_only(set())
+        code, out, err = slip(graph, probe, "topic", "info", "/sim/truth", "--json")
+        assert code == 0, err
+        assert json.loads(out)["readers"] == ["foxglove_bridge (on demand)"]
+        code, out, err = slip(graph, probe, "topic", "pub", "/sim/truth", "{period: 1}", "--wait", "20")
+    assert code == 0, err
+    assert "readers" not in out and out.startswith("published SimTruth"), out

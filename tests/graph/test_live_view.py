@@ -259,6 +259,33 @@ def test_slip_view_attaches_to_the_running_graph_and_advertises_its_topics(graph
     client.close()
 
 
+def test_the_bridge_receives_a_topic_only_while_a_client_watches_it(graph, probe):
+    from incipient_slip.graph.runtime import ANY_TOPIC, HELLO, ON_DEMAND
+    from incipient_slip.messages import GripCommand
+
+    estimates = probe.node.create_publisher(SlipEstimate)
+    commands = probe.node.create_publisher(GripCommand)
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.foxglove_bridge", "port:=0"])
+    url, lines = served_url(proc)
+    # its hello follows every subscription it made before: none reached our publishers
+    probe.until(lambda: probe.node._sub_counts.get(HELLO + b"foxglove_bridge"), procs=[proc],
+                what="the bridge connected to the probe")
+    assert (estimates.subscriber_count(), commands.subscriber_count()) == (0, 0)
+    assert probe.nodes(["foxglove_bridge"])["foxglove_bridge"].subscribes == {ANY_TOPIC: ON_DEMAND}
+    first = FoxgloveClient(url)       # see the 0.30.3 note in the slip view test below
+    first.until(lambda: {SlipEstimate.TOPIC, GripCommand.TOPIC} <= set(first.topics()))
+    first.close()
+    client = FoxgloveClient(url)
+    client.until(lambda: SlipEstimate.TOPIC in client.topics())
+    client.subscribe([SlipEstimate.TOPIC])
+    probe.until(lambda: estimates.subscriber_count() == 1, procs=[proc], what="the bridge subscribed")
+    probe.until(lambda: (estimates.publish(estimate(3)), client.pump(0.05))[1] and client.messages,
+                procs=[proc], what="an estimate through the bridge")
+    assert commands.subscriber_count() == 0
+    client.close()                    # the last client of the topic left: so does the bridge
+    probe.until(lambda: estimates.subscriber_count() == 0, procs=[proc], what="the bridge unsubscribed")
+
+
 @pytest.mark.skipif(not os.path.exists("/proc/self/autogroup"), reason="no scheduler autogroups here")
 @pytest.mark.parametrize("own_session,priority,group_nice", [(True, "low", 10), (True, "idle", 19),
                                                              (False, "low", None), (True, "normal", 0)])

@@ -20,7 +20,7 @@ import yaml
 from incipient_slip.errors import UsageError
 from incipient_slip.graph import discovery
 from incipient_slip.graph.params import format_value
-from incipient_slip.graph.runtime import ANY_TOPIC, Node
+from incipient_slip.graph.runtime import ANY_TOPIC, ON_DEMAND, Node
 from incipient_slip.messages import (
     DEFAULT_TOPICS, MESSAGE_TYPES, ActuatorCommand, GripCommand, Message, MessageError, PztCommand,
     RobotRecover, to_plain,
@@ -116,16 +116,17 @@ def cmd_param_dump(args) -> int:
 
 def cmd_topic_info(args) -> int:
     """Prints a topic's type, its writers and its live readers (a node reading every topic
-    counts as a reader)."""
+    counts as a reader; one that reads them on demand, the viewer bridge, is marked so)."""
     nodes = _nodes(args)
     writers = [i for i in nodes if args.topic in i.publishes]
     readers = [i for i in nodes if args.topic in i.subscribes or ANY_TOPIC in i.subscribes]
+    on_demand = {i.name for i in readers if i.subscribes.get(ANY_TOPIC) == ON_DEMAND}
     types = {i.publishes[args.topic] for i in writers} | {i.subscribes[args.topic] for i in readers
                                                          if args.topic in i.subscribes}
     type_name = next((t for t in sorted(types) if t in MESSAGE_TYPES),
                      DEFAULT_TOPICS[args.topic].__name__ if args.topic in DEFAULT_TOPICS else "?")
     row = {"topic": args.topic, "type": type_name, "writers": [i.name for i in writers],
-           "readers": [i.name for i in readers]}
+           "readers": [i.name + (" (on demand)" if i.name in on_demand else "") for i in readers]}
     if args.json:
         print(json.dumps(row))
     else:
@@ -180,7 +181,9 @@ def cmd_topic_pub(args) -> int:
         if devices:
             raise UsageError(f"graph runs real device nodes ({', '.join(devices)}); "
                              f"pass --force to publish on it")
-    readers = [i.name for i in nodes if args.topic in i.subscribes or ANY_TOPIC in i.subscribes]
+    # a reader "on demand" (the viewer bridge) subscribes only while its own clients want the topic
+    readers = [i.name for i in nodes if args.topic in i.subscribes
+               or i.subscribes.get(ANY_TOPIC) not in (None, ON_DEMAND)]
     kwargs = {"graph_dir": discovery.graph_dir(args.graph)}
     with _OnePublisher(type(msg), args.topic, **kwargs) as node:
         if readers and not node.pub.wait_for_subscribers(len(readers), args.wait):

@@ -85,11 +85,19 @@ class LiveView:
             message_backlog_size=backlog, server_listener=_listener(self.subscribed))
         self.host, self.port = host, self.server.port
 
-    def offer(self, topic: str, type_name: str) -> None:
-        """Advertises `topic` (a message type name of the contract) if it is not yet."""
+    def offer(self, topic: str, type_name: str) -> bool:
+        """Advertises `topic` (a message type name of the contract) if it is not yet; False when
+        the type is unknown (e.g. replay's "raw": the first message heard tells it)."""
         msg_type = MESSAGE_TYPES.get(type_name)
         if topic not in self.channels and msg_type is not None:
             self._open(topic, msg_type)
+        return topic in self.channels
+
+    def watched(self) -> set[str]:
+        """The topics some client subscribes to now (to the topic or to its audio channel)."""
+        audio = self._audio
+        return {topic for topic, channel in self.channels.items()
+                if channel.has_sinks() or (topic in audio and audio[topic].channel.has_sinks())}
 
     def forward(self, topic: str, body: bytes) -> bool:
         """Logs the msgpack `body` heard on `topic` to its channel(s); False when no client

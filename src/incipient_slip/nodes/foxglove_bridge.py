@@ -7,6 +7,11 @@ Connect the viewer to ws://127.0.0.1:8765 (docs/tools.md, "Live view"). The prot
 authentication: the bridge binds the loopback address unless `host` says otherwise, and then
 prints a warning. It only reads the graph; the server refuses client publishing, parameters and
 services (graph/live_view.py). Needs the `[view]` extra (foxglove-sdk).
+
+It costs the graph little: it receives only the topics some client subscribes to (within
+FOLLOW_S of the subscription; a topic's publisher sends it nothing otherwise), thins P_AC for
+the viewer (graph/live_view.py) and runs at a lower CPU priority (`priority`; docs/performance.md,
+"Live view").
 """
 from __future__ import annotations
 
@@ -26,6 +31,8 @@ from incipient_slip.graph.runtime import ANY_TOPIC, POLL_S, Node, run_node
 from incipient_slip.messages import PAC_RATE_HZ, Message, MessageError
 
 __all__ = ["FoxgloveBridge", "register"]
+
+FOLLOW_S = 0.1      # how often the topics received follow what the clients subscribe to
 
 
 class FoxgloveBridge(Node):
@@ -64,9 +71,11 @@ class FoxgloveBridge(Node):
         self.on_shutdown(self.view.close)
         self.log(f"serving ws://{host}:{self.view.port} (read-only)")
         self.create_raw_subscription(self.on_message)
-        # not 1.0 s: two timers due at once with equal periods make runtime.Timer compare callbacks
-        self.create_timer(0.7, self.offer_announced)
+        self.untyped: set[str] = set()     # announced topics of no known type (replay's "raw")
+        self.create_timer(1.0, self.offer_announced)
+        self.create_timer(FOLLOW_S, self.follow_clients)
         self.offer_announced()
+        self.follow_clients()
         if self.param("wait_for_client_s") > 0:
             self.wait_for_client(self.param("wait_for_client_s"))
 
@@ -81,7 +90,14 @@ class FoxgloveBridge(Node):
         # Node keeps its graph directory private; _dir is where this node announced itself.
         for info in discovery.scan(self._dir, clean=False):
             for topic, type_name in info.publishes.items():
-                self.view.offer(topic, type_name)
+                if not self.view.offer(topic, type_name):
+                    self.untyped.add(topic)
+
+    def follow_clients(self) -> None:
+        """Receives only the topics some client watches (publishers send the bridge nothing
+        else), and those of unknown type until their first message tells the type."""
+        self.untyped -= self.view.channels.keys()
+        self.receive_only(self.view.watched() | self.untyped)
 
     def wait_for_client(self, timeout_s: float) -> None:
         """Blocks (before this node says hello, so a launch's sources wait too) until a viewer
@@ -92,6 +108,7 @@ class FoxgloveBridge(Node):
             if time.monotonic() > deadline:
                 self.warn(f"no viewer subscribed within {timeout_s:g} s; going on")
                 return
+        self.follow_clients()       # before this node's hello: the sources' first messages come
 
 
 def lower_priority(priority: str) -> None:
