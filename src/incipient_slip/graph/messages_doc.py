@@ -233,7 +233,10 @@ with the keys {keys}:
  "params": {{"method": "injection", "window_s": 0.0}}}}
 ```
 
-`publishes` and `subscribes` map topics (after remaps) to type names. `started_ns` is
+`publishes` and `subscribes` map topics (after remaps) to type names; the topic `*` is every
+topic, of type `raw` (a recorder: subscribed to all) or `on demand` (the viewer bridge: it
+connects to every publisher but subscribes only to the topics its viewers watch at the time, so
+a publisher cannot count it as a subscriber). `started_ns` is
 **wall-clock** time when the node started, ns since the Unix epoch (Python `time.time_ns()`,
 C `clock_gettime(CLOCK_REALTIME)`), never a monotonic clock; a value before the machine booted
 is ignored. `pidns` and `netns` are the writer's PID and network namespaces as
