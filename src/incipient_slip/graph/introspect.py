@@ -11,6 +11,7 @@ can.
 """
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import time
@@ -244,20 +245,18 @@ def register_param(subparsers, graph, guard) -> None:
         "Read-only: a node reads its parameters once; change them in the launch file or on the "
         "command line and restart it.")
     psub = param.add_subparsers(dest="tool", metavar="TOOL", required=True)
-    p = psub.add_parser("list", parents=[graph], help="a node's parameter names")
-    p.add_argument("node", help="node name, e.g. grip_controller")
-    p.add_argument("--json", action="store_true", help="one JSON list per process of that name")
-    p.set_defaults(func=guard(cmd_param_list))
-    p = psub.add_parser("get", parents=[graph], help="one parameter's value",
-                        description="Prints the value of parameter NAME of node NODE, as "
-                        "`NAME:=VALUE` on a node's command line would give it.")
-    p.add_argument("node", help="node name, e.g. grip_controller")
-    p.add_argument("name", help="parameter name, e.g. s_d")
-    p.add_argument("--json", action="store_true", help="the value as JSON")
-    p.set_defaults(func=guard(cmd_param_get))
-    p = psub.add_parser("dump", parents=[graph], help="all of a node's parameters as YAML",
-                        description="Prints every parameter of node NODE as YAML (name: value, "
-                        "sorted by name) after a comment line naming the node and its pid.")
-    p.add_argument("node", help="node name, e.g. grip_controller")
-    p.add_argument("--json", action="store_true", help="one JSON object per process of that name")
-    p.set_defaults(func=guard(cmd_param_dump))
+    named = argparse.ArgumentParser(add_help=False, parents=[graph])
+    named.add_argument("node", help="node name, e.g. grip_controller")
+    for verb, handler, summary, description, as_json in (
+            ("list", cmd_param_list, "a node's parameter names", None,
+             "one JSON list per process of that name"),
+            ("get", cmd_param_get, "one parameter's value", "Prints the value of parameter NAME of "
+             "node NODE, as `NAME:=VALUE` on a node's command line would give it.", "the value as JSON"),
+            ("dump", cmd_param_dump, "all of a node's parameters as YAML", "Prints every parameter "
+             "of node NODE as YAML (name: value, sorted by name) after a comment line naming the "
+             "node and its pid.", "one JSON object per process of that name")):
+        p = psub.add_parser(verb, parents=[named], help=summary, description=description)
+        if verb == "get":
+            p.add_argument("name", help="parameter name, e.g. s_d")
+        p.add_argument("--json", action="store_true", help=as_json)
+        p.set_defaults(func=guard(handler))
