@@ -19,7 +19,7 @@ from incipient_slip.errors import EXIT_INTERRUPTED, EXIT_USAGE, UsageError
 # "module" (its register) or "module:function": register(subparsers) -> None, adding exactly
 # these commands (a test checks)
 COMMANDS = {
-    "incipient_slip.graph.tools:register_topic": ("topic", "node"),
+    "incipient_slip.graph.tools:register_topic": ("topic", "node", "param"),
     "incipient_slip.graph.tools:register_bag": ("bag",),
     "incipient_slip.sim.cli": ("dataset",),
     "incipient_slip.models.cli": ("train", "evaluate"),

@@ -75,3 +75,64 @@ def test_topic_pub_refuses_any_topic_on_a_graph_with_real_device_nodes(graph, pr
     with Node("ur5", graph_dir=graph.dir, heartbeat_s=0):          # a device node is running
         code, out, err = slip(graph, probe, "topic", "pub", "/sim/truth", "{period: 1}")
     assert code == 2 and "real device nodes (ur5)" in err, err
+
+
+@pytest.fixture
+def controller(graph, probe):
+    """A grip_controller process with two parameters given on its command line, announced."""
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.grip_controller", "s_d:=0.45",
+                        "method:=e19", "wait_subscribers:=0"])
+    probe.nodes(["grip_controller"], procs=[proc])
+    return proc
+
+
+def test_param_dump_gives_every_parameter_of_a_running_node_as_resolved(graph, probe, controller):
+    import yaml
+
+    from incipient_slip.graph.params import declared_params
+    from incipient_slip.nodes.grip_controller import GripController
+
+    code, out, err = slip(graph, probe, "param", "dump", "grip_controller")
+    assert code == 0, err
+    assert out.startswith(f"# grip_controller (pid {controller.pid})")
+    expected = {name: p.default for name, p in declared_params(GripController).items()}
+    expected.update(s_d=0.45, method="e19", wait_subscribers=0)
+    assert yaml.safe_load(out) == expected
+    code, out, err = slip(graph, probe, "param", "dump", "grip_controller", "--json")
+    assert code == 0, err
+    assert json.loads(out) == {"name": "grip_controller", "pid": controller.pid, "params": expected}
+    code, out, err = slip(graph, probe, "param", "list", "grip_controller")
+    assert code == 0, err
+    assert out.split() == sorted(expected)
+
+
+def test_param_get_prints_one_value_as_a_command_line_would_give_it(graph, probe, controller):
+    from incipient_slip.graph.params import parse_value
+
+    for name, value in (("s_d", 0.45), ("method", "e19"), ("lockstep", False)):
+        code, out, err = slip(graph, probe, "param", "get", "grip_controller", name)
+        assert code == 0, err
+        assert parse_value(out.strip()) == value, (name, out)
+    code, out, err = slip(graph, probe, "param", "get", "grip_controller", "gain")
+    assert code == 2 and "no parameter 'gain'" in err and "s_d" in err, err
+    assert len(err.strip().splitlines()) == 1
+    code, out, err = slip(graph, probe, "param", "get", "nobody", "s_d")
+    assert code == 2 and "no node 'nobody'" in err
+
+
+def test_params_are_read_only_from_the_tool(graph, probe, controller):
+    code, out, err = slip(graph, probe, "param", "set", "grip_controller", "s_d", "0.9")
+    assert code == 2 and "invalid choice: 'set'" in err, err
+
+
+def test_topic_pub_does_not_wait_for_a_reader_on_demand_and_info_marks_it(graph, probe):
+    from incipient_slip.graph.runtime import Node
+    with Node("foxglove_bridge", graph_dir=graph.dir, heartbeat_s=0) as bridge:   # as the bridge reads
+        bridge.create_raw_subscription(lambda topic, body, ns: None)
+        bridge.receive_only(set())
+        code, out, err = slip(graph, probe, "topic", "info", "/sim/truth", "--json")
+        assert code == 0, err
+        assert json.loads(out)["readers"] == ["foxglove_bridge (on demand)"]
+        code, out, err = slip(graph, probe, "topic", "pub", "/sim/truth", "{period: 1}", "--wait", "20")
+    assert code == 0, err
+    assert "readers" not in out and out.startswith("published SimTruth"), out

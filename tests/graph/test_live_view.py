@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import base64
 import json
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -93,9 +96,11 @@ def test_p_ac_audio_is_upsampled_to_a_rate_browsers_play_and_keeps_the_tone(view
     client.until(lambda: view.forward("/biotac/pac", encode(frames[0])), what="subscription active")
     for frame in frames[1:]:
         view.forward("/biotac/pac", encode(frame))
-    client.until(lambda: len(client.messages) >= len(frames))
+    # every sample, in blocks of 10 frames (100 ms), each logged at its last frame's stamp
+    client.until(lambda: len(client.messages) >= len(frames) // 10)
     blocks = [m.payload for m in client.messages]
     assert {(b["format"], b["sample_rate"], b["number_of_channels"]) for b in blocks} == {("pcm-s16", 8800, 1)}
+    assert [m.log_time_ns for m in client.messages] == [f.stamp_ns for f in frames[9::10]]
     pcm = np.concatenate([np.frombuffer(base64.b64decode(b["data"]), "<i2") for b in blocks])
     assert pcm.size == 4 * counts.size
     spectrum = np.abs(np.fft.rfft(pcm[400:].astype(float)))
@@ -105,6 +110,63 @@ def test_p_ac_audio_is_upsampled_to_a_rate_browsers_play_and_keeps_the_tone(view
     image = spectrum[np.abs(np.fft.rfftfreq(pcm[400:].size, 1 / 8800) - 2000.0) < 20].max()
     assert image < 0.05 * spectrum.max()
     client.close()
+
+
+def pac_frames(n: int, t0_ns: int = 10**9, seq0: int = 0) -> list[BiotacPac]:
+    """n consecutive P_AC frames (10 ms apart), each with different counts."""
+    rng = np.random.default_rng(seq0)
+    return [BiotacPac(pac_counts=rng.integers(-2000, 2000, 22).astype(np.int16),
+                      stamp_ns=t0_ns + j * 10_000_000, seq=seq0 + j) for j in range(n)]
+
+
+@pytest.mark.parametrize("pac_view_hz,shown", [(10.0, range(0, 40, 10)), (25.0, range(0, 40, 4)),
+                                               (0.0, range(40))])
+def test_p_ac_frames_are_thinned_to_pac_view_hz_by_their_stamps(pac_view_hz, shown):
+    view = LiveView("127.0.0.1", 0, pac_view_hz=pac_view_hz)
+    try:
+        view.offer("/biotac/pac", "BiotacPac")
+        view.offer(SlipEstimate.TOPIC, "SlipEstimate")
+        client = client_of(view)
+        client.until(lambda: {"/biotac/pac", SlipEstimate.TOPIC} <= set(client.topics()))
+        client.subscribe(["/biotac/pac", SlipEstimate.TOPIC])
+        client.until(lambda: view.forward(SlipEstimate.TOPIC, encode(estimate(0))), what="subscription active")
+        frames = pac_frames(40)
+        for frame in frames:
+            assert view.forward("/biotac/pac", encode(frame))
+        view.forward(SlipEstimate.TOPIC, encode(estimate(1)))     # sent after the frames: arrives after them
+        client.until(lambda: any(m.topic == SlipEstimate.TOPIC and m.payload["seq"] == 1
+                                 for m in client.messages), what="the estimate after the frames")
+        got = [m for m in client.messages if m.topic == "/biotac/pac"]
+        assert [m.payload for m in got] == [json.loads(json.dumps(to_export_json(frames[i]))) for i in shown]
+        client.close()
+    finally:
+        view.close()
+
+
+def test_an_audio_block_holds_consecutive_frames_only():
+    view = LiveView("127.0.0.1", 0, audio_rate_hz=2200, audio_block_frames=10)
+    try:
+        view.offer("/biotac/pac", "BiotacPac")
+        client = client_of(view)
+        client.until(lambda: "/biotac/pac/audio" in client.topics())
+        client.subscribe(["/biotac/pac/audio"])
+        # 5 frames, a lost one, 10 more: a block of 5, then one of 10
+        frames = pac_frames(16)
+        del frames[5]
+        client.until(lambda: view.forward("/biotac/pac", encode(frames[0])), what="subscription active")
+        for frame in frames[1:]:
+            view.forward("/biotac/pac", encode(frame))
+        client.until(lambda: len(client.messages) >= 2)
+        first, second = (m.payload for m in client.messages[:2])
+        for block, part in ((first, frames[:5]), (second, frames[5:])):
+            pcm = np.frombuffer(base64.b64decode(block["data"]), "<i2")
+            assert np.array_equal(pcm, np.concatenate([f.pac_counts for f in part]))  # x1: as sent
+            start_ns = part[-1].stamp_ns - round((pcm.size - 1) * 1e9 / 2200)
+            assert block["timestamp"] == {"sec": start_ns // 10**9, "nsec": start_ns % 10**9}
+        assert [m.log_time_ns for m in client.messages[:2]] == [frames[4].stamp_ns, frames[-1].stamp_ns]
+        client.close()
+    finally:
+        view.close()
 
 
 def test_client_publishing_parameters_and_services_are_refused(view):
@@ -195,3 +257,48 @@ def test_slip_view_attaches_to_the_running_graph_and_advertises_its_topics(graph
                 what="a message through slip view")
     assert client.messages[0].payload["stick_ratio"] == sent.stick_ratio
     client.close()
+
+
+def test_the_bridge_receives_a_topic_only_while_a_client_watches_it(graph, probe):
+    from incipient_slip.graph.runtime import ANY_TOPIC, HELLO, ON_DEMAND
+    from incipient_slip.messages import GripCommand
+
+    estimates = probe.node.create_publisher(SlipEstimate)
+    commands = probe.node.create_publisher(GripCommand)
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.foxglove_bridge", "port:=0"])
+    url, lines = served_url(proc)
+    # its hello follows every subscription it made before: none reached our publishers
+    probe.until(lambda: probe.node._sub_counts.get(HELLO + b"foxglove_bridge"), procs=[proc],
+                what="the bridge connected to the probe")
+    assert (estimates.subscriber_count(), commands.subscriber_count()) == (0, 0)
+    assert probe.nodes(["foxglove_bridge"])["foxglove_bridge"].subscribes == {ANY_TOPIC: ON_DEMAND}
+    first = FoxgloveClient(url)       # see the 0.30.3 note in the slip view test below
+    first.until(lambda: {SlipEstimate.TOPIC, GripCommand.TOPIC} <= set(first.topics()))
+    first.close()
+    client = FoxgloveClient(url)
+    client.until(lambda: SlipEstimate.TOPIC in client.topics())
+    client.subscribe([SlipEstimate.TOPIC])
+    probe.until(lambda: estimates.subscriber_count() == 1, procs=[proc], what="the bridge subscribed")
+    probe.until(lambda: (estimates.publish(estimate(3)), client.pump(0.05))[1] and client.messages,
+                procs=[proc], what="an estimate through the bridge")
+    assert commands.subscriber_count() == 0
+    client.close()                    # the last client of the topic left: so does the bridge
+    probe.until(lambda: estimates.subscriber_count() == 0, procs=[proc], what="the bridge unsubscribed")
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/autogroup"), reason="no scheduler autogroups here")
+@pytest.mark.parametrize("own_session,priority,group_nice", [(True, "low", 10), (True, "idle", 19),
+                                                             (False, "low", None), (True, "normal", 0)])
+def test_the_bridge_lowers_its_session_group_only_when_it_leads_it(own_session, priority, group_nice):
+    """Linux weighs session groups before nice within them: a bridge alone in its session
+    (setsid, as bench_loop.py starts it) must lower its group, and must leave a shared one."""
+    code = ("from incipient_slip.nodes.foxglove_bridge import lower_priority; import os; "
+            f"lower_priority({priority!r}); print(open('/proc/self/autogroup').read().split()[-1], "
+            "os.getpriority(os.PRIO_PROCESS, 0))")
+    before = open("/proc/self/autogroup").read().split()[-1]
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                         start_new_session=own_session, check=True).stdout.split()
+    assert out[0] == str(group_nice if group_nice is not None else before)
+    if priority != "idle":                  # idle is SCHED_IDLE, not a nice value
+        assert out[1] == ("10" if priority == "low" else "0")
+    assert open("/proc/self/autogroup").read().split()[-1] == before

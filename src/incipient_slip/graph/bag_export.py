@@ -27,7 +27,7 @@ import numpy as np
 from incipient_slip.graph.bag import BagError, BagWriter, bag_info, json_schema, read_bag
 from incipient_slip.messages import MESSAGE_TYPES, PAC_RATE_HZ, BiotacPac, Message
 
-__all__ = ["export_foxglove", "export_schema", "to_export_json", "raw_audio", "RAW_AUDIO_SCHEMA",
+__all__ = ["export_foxglove", "export_schema", "to_export_json", "raw_audio", "raw_audio_block", "RAW_AUDIO_SCHEMA",
            "ExportReport", "JS_SAFE_INT", "AudioUpsampler", "AUDIO_RATE_HZ"]
 
 JS_SAFE_INT = (1 << 53) - 1     # the largest integer a JavaScript number holds exactly
@@ -195,11 +195,17 @@ def raw_audio(msg: BiotacPac, upsample: AudioUpsampler | None = None) -> dict:
     `upsample` (the topic's stream so far) the block is at its rate and starts earlier by its
     filter's delay.
     """
-    n = msg.pac_counts.size
+    return raw_audio_block(msg.pac_counts, msg.stamp_ns, upsample)
+
+
+def raw_audio_block(counts: np.ndarray, stamp_ns: int, upsample: AudioUpsampler | None = None) -> dict:
+    """`raw_audio` of consecutive P_AC samples `counts` whose last sample is at `stamp_ns`
+    (one frame, or frames joined into a longer block)."""
+    n = counts.size
     factor, delay = (upsample.factor, upsample.delay_samples) if upsample else (1, 0.0)
-    pcm = upsample(msg.pac_counts) if upsample else msg.pac_counts
+    pcm = upsample(counts) if upsample else counts
     rate = PAC_RATE_HZ * factor
-    start_ns = max(0, msg.stamp_ns - round((n - 1) * 1e9 / PAC_RATE_HZ + delay * 1e9 / rate))
+    start_ns = max(0, stamp_ns - round((n - 1) * 1e9 / PAC_RATE_HZ + delay * 1e9 / rate))
     return {"timestamp": _time(start_ns),
             "data": base64.b64encode(pcm.astype("<i2").tobytes()).decode("ascii"),
             "format": "pcm-s16", "sample_rate": rate, "number_of_channels": 1}

@@ -29,6 +29,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 __all__ = ["graph_dir", "GraphNameError", "GraphDirError", "check_graph_dir", "NodeInfo", "announce", "withdraw", "scan", "remove_pid",
            "ipc_endpoint", "Discovery", "GRAPH_DIR_ENV", "GRAPH_ENV", "TRANSPORT_ENV"]
@@ -122,11 +123,15 @@ def ipc_endpoint(directory: Path, name: str, pid: int) -> str:
 # replay writes what its file holds. The launcher counts such a node as a reader (writer) of
 # every topic of the launch.
 ANY_TOPIC = "*"
+# The type an every-topic reader announces once it receives only the topics it asks for at the
+# time (`Node.receive_only`): it connects to every publisher but may not be subscribed to a topic.
+ON_DEMAND = "on demand"
 
 
 @dataclass
 class NodeInfo:
-    """One announced node: name, pid, endpoint, {topic: type name} published and subscribed."""
+    """One announced node: name, pid, endpoint, {topic: type name} published and subscribed,
+    and its parameters as resolved at its start (`slip param`; read-only: nothing reads them back)."""
 
     name: str
     pid: int
@@ -137,6 +142,7 @@ class NodeInfo:
     path: Path | None = None
     pidns: str = ""       # the PID namespace its pid is in ("pid:[4026531836]"); "" unknown
     netns: str = ""       # the network namespace its tcp endpoint is in; "" unknown
+    params: dict[str, Any] = field(default_factory=dict)
 
 
 def announce(directory: Path, info: NodeInfo) -> Path:
@@ -146,7 +152,7 @@ def announce(directory: Path, info: NodeInfo) -> Path:
     tmp.write_text(json.dumps({"name": info.name, "pid": info.pid, "endpoint": info.endpoint,
                                "publishes": info.publishes, "subscribes": info.subscribes,
                                "started_ns": info.started_ns, "pidns": info.pidns,
-                               "netns": info.netns}))
+                               "netns": info.netns, "params": info.params}, default=str))
     os.replace(tmp, path)
     info.path = path
     return path
@@ -304,7 +310,8 @@ def scan(directory: Path, clean: bool = True, refused: dict[str, str] | None = N
             info = NodeInfo(str(raw["name"]), int(raw["pid"]), str(raw["endpoint"]),
                             dict(raw.get("publishes", {})), dict(raw.get("subscribes", {})),
                             int(raw.get("started_ns", 0)), Path(entry.path),
-                            str(raw.get("pidns", "")), str(raw.get("netns", "")))
+                            str(raw.get("pidns", "")), str(raw.get("netns", "")),
+                            dict(raw.get("params", {})))
         except (OSError, ValueError, KeyError, TypeError):
             continue    # being replaced right now, or not ours
         if is_dead(info):

@@ -1,7 +1,9 @@
-"""`slip node list|info`, `slip topic info` and `slip topic pub`: the ROS 2 habits, over discovery.
+"""`slip node list|info`, `slip param list|get|dump`, `slip topic info` and `slip topic pub`: the
+ROS 2 habits, over discovery.
 
-The first three read the nodes' announcement files (graph/discovery.py): who runs, what each
-publishes and subscribes. `topic pub` builds one message from YAML, validated by the messages
+All but `topic pub` read the nodes' announcement files (graph/discovery.py): who runs, what each
+publishes and subscribes, and each node's parameters as resolved at its start (defaults < launch
+file < command line; read-only: a running node's parameters cannot be set). `topic pub` builds one message from YAML, validated by the messages
 contract (field names, types, bounds, array shapes), and publishes it from a small node once the
 topic's live readers have subscribed. Commands are refused (`--force` overrides): a message on a
 command topic moves hardware or changes the run, and on a graph with real devices any message
@@ -9,19 +11,20 @@ can.
 """
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import time
 
 from incipient_slip.errors import UsageError
 from incipient_slip.graph import discovery
-from incipient_slip.graph.discovery import ANY_TOPIC
+from incipient_slip.graph.discovery import ANY_TOPIC, ON_DEMAND
 
-# The messages, the runtime and yaml are imported by the commands that use them, not here:
-# registering these commands (`slip topic --help`) must not load numpy or zmq.
+# The messages, the runtime, the params module and yaml are imported by the commands that use them,
+# not here: registering these commands (`slip topic --help`) must not load numpy or zmq.
 
-__all__ = ["cmd_node_list", "cmd_node_info", "cmd_topic_info", "cmd_topic_pub", "command_topics",
-           "DEVICE_NODES"]
+__all__ = ["cmd_node_list", "cmd_node_info", "cmd_param_list", "cmd_param_get", "cmd_param_dump",
+           "cmd_topic_info", "cmd_topic_pub", "command_topics", "DEVICE_NODES"]
 
 # nodes that drive real devices: their presence makes the graph a hardware graph
 DEVICE_NODES = frozenset({"ur5", "linear_actuator", "pzt_injector", "biotac_reader", "mocap_bridge"})
@@ -56,13 +59,18 @@ def cmd_node_list(args) -> int:
     return 0
 
 
-def cmd_node_info(args) -> int:
-    """Prints one node's pid, endpoint, publications and subscriptions."""
+def _named(args) -> list[discovery.NodeInfo]:
+    """The running processes of node `args.node` (UsageError when there is none)."""
     found = [i for i in _nodes(args) if i.name == args.node]
     if not found:
         raise UsageError(f"no node {args.node!r} in graph {discovery.graph_dir(args.graph)} "
                          f"(slip node list shows the running ones)")
-    for info in found:
+    return found
+
+
+def cmd_node_info(args) -> int:
+    """Prints one node's pid, endpoint, publications and subscriptions."""
+    for info in _named(args):
         if args.json:
             print(json.dumps(_plain(info)))
             continue
@@ -75,19 +83,55 @@ def cmd_node_info(args) -> int:
     return 0
 
 
+def cmd_param_list(args) -> int:
+    """Prints the names of a running node's parameters, one a line."""
+    for info in _named(args):
+        print(json.dumps(sorted(info.params)) if args.json else "\n".join(sorted(info.params)))
+    return 0
+
+
+def cmd_param_get(args) -> int:
+    """Prints one parameter of a running node, as `name:=VALUE` would give it."""
+    found = _named(args)
+    for info in found:
+        if args.name not in info.params:
+            raise UsageError(f"node {info.name} (pid {info.pid}) has no parameter {args.name!r}; "
+                             f"its parameters: {', '.join(sorted(info.params)) or '(none)'}")
+        value = info.params[args.name]
+        from incipient_slip.graph.params import format_value
+        text = json.dumps(value) if args.json else format_value(value)
+        print(f"{text}  (pid {info.pid})" if len(found) > 1 else text)
+    return 0
+
+
+def cmd_param_dump(args) -> int:
+    """Prints every parameter of a running node as YAML (`name: value`), or as one JSON object."""
+    import yaml
+
+    for info in _named(args):
+        if args.json:
+            print(json.dumps({"name": info.name, "pid": info.pid, "params": info.params}))
+            continue
+        print(f"# {info.name} (pid {info.pid}): parameters as resolved at its start")
+        print(yaml.safe_dump(info.params, sort_keys=True, default_flow_style=False).rstrip()
+              if info.params else "{}")
+    return 0
+
+
 def cmd_topic_info(args) -> int:
     """Prints a topic's type, its writers and its live readers (a node reading every topic
-    counts as a reader)."""
+    counts as a reader; one that reads them on demand, the viewer bridge, is marked so)."""
     nodes = _nodes(args)
     writers = [i for i in nodes if args.topic in i.publishes]
     readers = [i for i in nodes if args.topic in i.subscribes or ANY_TOPIC in i.subscribes]
+    on_demand = {i.name for i in readers if i.subscribes.get(ANY_TOPIC) == ON_DEMAND}
     types = {i.publishes[args.topic] for i in writers} | {i.subscribes[args.topic] for i in readers
                                                          if args.topic in i.subscribes}
     from incipient_slip.messages import DEFAULT_TOPICS, MESSAGE_TYPES
     type_name = next((t for t in sorted(types) if t in MESSAGE_TYPES),
                      DEFAULT_TOPICS[args.topic].__name__ if args.topic in DEFAULT_TOPICS else "?")
     row = {"topic": args.topic, "type": type_name, "writers": [i.name for i in writers],
-           "readers": [i.name for i in readers]}
+           "readers": [i.name + (" (on demand)" if i.name in on_demand else "") for i in readers]}
     if args.json:
         print(json.dumps(row))
     else:
@@ -147,7 +191,9 @@ def cmd_topic_pub(args) -> int:
         if devices:
             raise UsageError(f"graph runs real device nodes ({', '.join(devices)}); "
                              f"pass --force to publish on it")
-    readers = [i.name for i in nodes if args.topic in i.subscribes or ANY_TOPIC in i.subscribes]
+    # a reader "on demand" (the viewer bridge) subscribes only while its own clients want the topic
+    readers = [i.name for i in nodes if args.topic in i.subscribes
+               or i.subscribes.get(ANY_TOPIC) not in (None, ON_DEMAND)]
     kwargs = {"graph_dir": discovery.graph_dir(args.graph)}
     with _OnePublisher(type(msg), args.topic, **kwargs) as node:
         if readers and not node.pub.wait_for_subscribers(len(readers), args.wait):
@@ -198,3 +244,29 @@ def register_node(subparsers, graph, guard) -> None:
     p.add_argument("node", help="node name, e.g. estimator")
     p.add_argument("--json", action="store_true", help="one JSON object per process of that name")
     p.set_defaults(func=guard(cmd_node_info))
+
+
+def register_param(subparsers, graph, guard) -> None:
+    """Adds `slip param list|get|dump` (read-only: there is no `set`)."""
+    param = subparsers.add_parser(
+        "param", help="the parameters of a running node (read-only)",
+        description="A running node's parameters as it resolved them at its start (its defaults < "
+        "the launch file < its command line), read from its announcement in the graph directory. "
+        "Read-only: a node reads its parameters once; change them in the launch file or on the "
+        "command line and restart it.")
+    psub = param.add_subparsers(dest="tool", metavar="TOOL", required=True)
+    named = argparse.ArgumentParser(add_help=False, parents=[graph])
+    named.add_argument("node", help="node name, e.g. grip_controller")
+    for verb, handler, summary, description, as_json in (
+            ("list", cmd_param_list, "a node's parameter names", None,
+             "one JSON list per process of that name"),
+            ("get", cmd_param_get, "one parameter's value", "Prints the value of parameter NAME of "
+             "node NODE, as `NAME:=VALUE` on a node's command line would give it.", "the value as JSON"),
+            ("dump", cmd_param_dump, "all of a node's parameters as YAML", "Prints every parameter "
+             "of node NODE as YAML (name: value, sorted by name) after a comment line naming the "
+             "node and its pid.", "one JSON object per process of that name")):
+        p = psub.add_parser(verb, parents=[named], help=summary, description=description)
+        if verb == "get":
+            p.add_argument("name", help="parameter name, e.g. s_d")
+        p.add_argument("--json", action="store_true", help=as_json)
+        p.set_defaults(func=guard(handler))

@@ -10,7 +10,13 @@ channel `<topic>/audio` of `foxglove.RawAudio`.
 Audio: P_AC is 2200 Hz, below the 8-96 kHz every browser's Web Audio `AudioBuffer` must support
 (Chromium's floor is 3 kHz), so a browser-based Audio panel cannot be relied on to play it.
 The live audio is upsampled as in the export (`bag_export.AudioUpsampler`, x4 to 8800 Hz by
-default); the raw counts stay on `/biotac/pac`.
+default) and carries every sample, in blocks of `audio_block_frames` frames (100 ms by default;
+the export writes one block per frame).
+
+P_AC frames (100 a second) on the BiotacPac channel itself are thinned for the viewer: at most
+`pac_view_hz` a second of the frames' own time (10 by default: the first frame of each 100 ms of
+stamps), which is what a plot of "the latest frame" redraws; 0 passes every frame. The audio
+channel carries the whole waveform. Every other topic is passed message for message.
 
 Safety: no capability is advertised, so the server refuses client publishing, parameters and
 services (status "does not support ..."); no viewer can command the rig. A slow or stalled
@@ -24,15 +30,22 @@ import ipaddress
 import json
 import threading
 
+import numpy as np
+
 from incipient_slip.graph.bag_export import (
-    AUDIO_RATE_HZ, AUDIO_SUFFIX, RAW_AUDIO_SCHEMA, AudioUpsampler, export_schema, raw_audio,
+    AUDIO_RATE_HZ, AUDIO_SUFFIX, RAW_AUDIO_SCHEMA, AudioUpsampler, export_schema, raw_audio_block,
     to_export_json,
 )
-from incipient_slip.messages import MESSAGE_TYPES, PAC_RATE_HZ, BiotacPac, decode_any
+from incipient_slip.messages import (
+    MESSAGE_TYPES, PAC_RATE_HZ, PAC_SAMPLES_PER_FRAME, BiotacPac, decode_any,
+)
 
 __all__ = ["LiveView", "is_loopback", "EXTRA_HINT"]
 
 EXTRA_HINT = "the live view needs foxglove-sdk: pip install 'incipient-slip[view]'"
+PAC_VIEW_HZ = 10.0          # P_AC frames a second on the BiotacPac channel (see the module doc)
+AUDIO_BLOCK_FRAMES = 10     # P_AC frames per RawAudio message: 100 ms
+_FRAME_NS = PAC_SAMPLES_PER_FRAME * 1_000_000_000 // PAC_RATE_HZ
 
 
 def is_loopback(host: str) -> bool:
@@ -49,7 +62,8 @@ class LiveView:
     """A foxglove-sdk WebSocket server with a JSON channel per graph topic (see module doc)."""
 
     def __init__(self, host: str = "127.0.0.1", port: int = 8765, *, backlog: int = 1024,
-                 audio_rate_hz: int = AUDIO_RATE_HZ, name: str = "incipient-slip"):
+                 audio_rate_hz: int = AUDIO_RATE_HZ, pac_view_hz: float = PAC_VIEW_HZ,
+                 audio_block_frames: int = AUDIO_BLOCK_FRAMES, name: str = "incipient-slip"):
         try:
             import foxglove
         except ImportError:
@@ -58,36 +72,58 @@ class LiveView:
             raise ValueError(f"audio_rate_hz {audio_rate_hz} is not a multiple of {PAC_RATE_HZ} Hz")
         self._fox = foxglove
         self.audio_factor = audio_rate_hz // PAC_RATE_HZ
+        self.audio_block_frames = audio_block_frames
+        # the BiotacPac channel shows the first frame of each bucket of this many ns of stamps
+        self._pac_bucket_ns = int(1e9 / pac_view_hz) if pac_view_hz > 0 else 0
+        self._pac_shown: dict[str, int] = {}          # topic -> bucket of the last frame shown
         self.context = foxglove.Context()
         self.subscribed = threading.Event()           # set when a client first subscribes
         self.channels: dict[str, object] = {}         # topic -> foxglove.Channel
-        self._audio: dict[str, tuple[object, AudioUpsampler]] = {}
+        self._audio: dict[str, _AudioBlocks] = {}
         self.server = foxglove.start_server(
             name=name, host=host, port=port, capabilities=[], context=self.context,
             message_backlog_size=backlog, server_listener=_listener(self.subscribed))
         self.host, self.port = host, self.server.port
 
-    def offer(self, topic: str, type_name: str) -> None:
-        """Advertises `topic` (a message type name of the contract) if it is not yet."""
+    def offer(self, topic: str, type_name: str) -> bool:
+        """Advertises `topic` (a message type name of the contract) if it is not yet; False when
+        the type is unknown (e.g. replay's "raw": the first message heard tells it)."""
         msg_type = MESSAGE_TYPES.get(type_name)
         if topic not in self.channels and msg_type is not None:
             self._open(topic, msg_type)
+        return topic in self.channels
+
+    def watched(self) -> set[str]:
+        """The topics some client subscribes to now (to the topic or to its audio channel)."""
+        audio = self._audio
+        return {topic for topic, channel in self.channels.items()
+                if channel.has_sinks() or (topic in audio and audio[topic].channel.has_sinks())}
 
     def forward(self, topic: str, body: bytes) -> bool:
         """Logs the msgpack `body` heard on `topic` to its channel(s); False when no client
         subscribes (the body is then not decoded). MessageError for a malformed body."""
         channel = self.channels.get(topic)
         audio = self._audio.get(topic)
-        if channel is not None and not channel.has_sinks() and not (audio and audio[0].has_sinks()):
+        if channel is not None and not channel.has_sinks() and not (audio and audio.channel.has_sinks()):
             return False
         msg = decode_any(body, topic)
         if channel is None:
             channel = self._open(topic, type(msg))
             audio = self._audio.get(topic)
-        if channel.has_sinks():
+        if channel.has_sinks() and (not isinstance(msg, BiotacPac) or self._shows_frame(topic, msg.stamp_ns)):
             channel.log(json.dumps(to_export_json(msg), allow_nan=False).encode(), log_time=msg.stamp_ns)
-        if audio is not None and audio[0].has_sinks():
-            self._log_audio(msg, *audio)
+        if audio is not None:
+            audio.add(msg)
+        return True
+
+    def _shows_frame(self, topic: str, stamp_ns: int) -> bool:
+        """Whether a P_AC frame stamped `stamp_ns` goes to its JSON channel (module doc)."""
+        if not self._pac_bucket_ns:
+            return True
+        bucket = stamp_ns // self._pac_bucket_ns
+        if bucket == self._pac_shown.get(topic):
+            return False
+        self._pac_shown[topic] = bucket
         return True
 
     def close(self) -> None:
@@ -103,15 +139,39 @@ class LiveView:
         if msg_type is BiotacPac:
             audio_schema = fox.Schema(name="foxglove.RawAudio", encoding="jsonschema",
                                       data=json.dumps(RAW_AUDIO_SCHEMA).encode())
-            self._audio[topic] = (fox.Channel(topic + AUDIO_SUFFIX, schema=audio_schema,
-                                              message_encoding="json", context=self.context,
-                                              metadata={"source_type": msg_type.__name__}),
-                                  AudioUpsampler(self.audio_factor))
+            self._audio[topic] = _AudioBlocks(
+                fox.Channel(topic + AUDIO_SUFFIX, schema=audio_schema, message_encoding="json",
+                            context=self.context, metadata={"source_type": msg_type.__name__}),
+                AudioUpsampler(self.audio_factor), self.audio_block_frames)
         return channel
 
-    def _log_audio(self, msg: BiotacPac, channel, upsample: AudioUpsampler) -> None:
-        obj = raw_audio(msg, upsample)
-        channel.log(json.dumps(obj).encode(), log_time=msg.stamp_ns)
+
+class _AudioBlocks:
+    """One P_AC topic's RawAudio channel: consecutive frames joined into blocks of `frames`
+    frames, upsampled and logged at the block's last frame's stamp. A gap in the stamps ends
+    a block early (a block holds consecutive samples only); frames no client hears are let go."""
+
+    def __init__(self, channel, upsample: AudioUpsampler, frames: int):
+        self.channel, self.upsample, self.frames = channel, upsample, frames
+        self.pending: list[np.ndarray] = []
+        self.last_ns = 0
+
+    def add(self, msg: BiotacPac) -> None:
+        if not self.channel.has_sinks():
+            self.pending = []
+            return
+        if self.pending and not 0 < msg.stamp_ns - self.last_ns < 1.5 * _FRAME_NS:
+            self.flush()
+        self.pending.append(msg.pac_counts)
+        self.last_ns = msg.stamp_ns
+        if len(self.pending) >= self.frames:
+            self.flush()
+
+    def flush(self) -> None:
+        if self.pending:
+            block = raw_audio_block(np.concatenate(self.pending), self.last_ns, self.upsample)
+            self.channel.log(json.dumps(block).encode(), log_time=self.last_ns)
+            self.pending = []
 
 
 def _listener(subscribed: threading.Event):

@@ -23,7 +23,8 @@ __all__ = ["render", "main", "ANNOUNCEMENT_KEYS"]
 
 REGENERATE = ".venv/bin/python -m incipient_slip.graph.messages_doc docs/messages.md"
 # The keys of an announcement file, as discovery.announce writes them (a test checks this).
-ANNOUNCEMENT_KEYS = ("name", "pid", "endpoint", "publishes", "subscribes", "started_ns", "pidns", "netns")
+ANNOUNCEMENT_KEYS = ("name", "pid", "endpoint", "publishes", "subscribes", "started_ns", "pidns", "netns",
+                     "params")
 
 _MSGPACK = {"bool": "bool", "str": "str", "float64": "float 64 (float 32 or int accepted)",
             **{w: "int" for w in INT_RANGES}}
@@ -228,14 +229,20 @@ with the keys {keys}:
 {{"name": "estimator", "pid": 4242, "endpoint": "ipc:///run/user/1000/incipient-slip/default/estimator-4242.sock",
  "publishes": {{"/slip/estimate": "SlipEstimate", "/heartbeat": "Heartbeat"}},
  "subscribes": {{"/biotac/pac": "BiotacPac", "/biotac/slow": "BiotacSlow", "/pzt/state": "PztState"}},
- "started_ns": 1700000000000000000, "pidns": "pid:[4026531836]", "netns": "net:[4026531840]"}}
+ "started_ns": 1700000000000000000, "pidns": "pid:[4026531836]", "netns": "net:[4026531840]",
+ "params": {{"method": "injection", "window_s": 0.0}}}}
 ```
 
-`publishes` and `subscribes` map topics (after remaps) to type names. `started_ns` is
+`publishes` and `subscribes` map topics (after remaps) to type names; the topic `*` is every
+topic, of type `raw` (a recorder: subscribed to all) or `on demand` (the viewer bridge: it
+connects to every publisher but subscribes only to the topics its viewers watch at the time, so
+a publisher cannot count it as a subscriber). `started_ns` is
 **wall-clock** time when the node started, ns since the Unix epoch (Python `time.time_ns()`,
 C `clock_gettime(CLOCK_REALTIME)`), never a monotonic clock; a value before the machine booted
 is ignored. `pidns` and `netns` are the writer's PID and network namespaces as
-`readlink /proc/self/ns/pid` (`.../net`) prints them; "" or absent means unknown. A reader skips
+`readlink /proc/self/ns/pid` (`.../net`) prints them; "" or absent means unknown. `params` are
+the node's parameters as it resolved them at its start (`slip param` reads them; nothing sets
+them back; a value JSON cannot hold is written as its text; absent means none). A reader skips
 a file it cannot parse. It removes a file (and its ipc socket) only when the node is proven
 dead, with one log line: in the reader's own PID namespace, its pid is gone or belongs to a
 process started more than 10 s after `started_ns`; in another or an unknown namespace, its

@@ -48,7 +48,7 @@ from incipient_slip.errors import EXIT_FAILURE, EXIT_USAGE
 from incipient_slip.graph.params import ParamError, as_param, declared_params, merge_params, parse_node_argv
 
 __all__ = ["Node", "Publisher", "RawPublisher", "Subscription", "RawSubscription", "Timer",
-           "run_node", "POLL_S", "LINGER_MS", "ANY_TOPIC", "READERS_ENV", "WRITERS_ENV", "HELLO"]
+           "run_node", "POLL_S", "LINGER_MS", "ANY_TOPIC", "ON_DEMAND", "READERS_ENV", "WRITERS_ENV", "HELLO"]
 
 POLL_S = 0.1              # longest a loop blocks before it looks at the stop flag
 DRAIN_MAX = 256           # queued messages one spin_once handles after the one it waited for
@@ -59,8 +59,12 @@ DISCONNECT_GRACE_S = 2.0  # how long a withdrawn publisher stays connected so it
 _LOG_EVERY_S = 1.0        # rate limit of repeated warnings (malformed frames, callback errors)
 READY_TIMEOUT_S = 10.0    # default wait for the named readers before a source starts anyway
 
-# A node's INPUTS/OUTPUTS key for "every topic" (discovery.ANY_TOPIC, as its announcement says it)
+# A node's INPUTS/OUTPUTS key for "every topic" (discovery.ANY_TOPIC, as its announcement says it):
+# the recorder reads all, replay writes what its file holds. The launcher counts such a node as a
+# reader (writer) of every topic of the launch.
 ANY_TOPIC = discovery.ANY_TOPIC
+# what an every-topic reader announces when it receives only the topics it asks for (discovery)
+ON_DEMAND = discovery.ON_DEMAND
 # Set by the launcher for each node: JSON {output topic after remaps: [reader node names]}, the
 # readers in this launch that `wait_for_readers` waits for. Unset (a node started by hand): none.
 READERS_ENV = "SLIP_READERS"
@@ -267,6 +271,7 @@ class Node:
         self._timers: list[Timer] = []
         self._subs: dict[str, list[Subscription]] = {}
         self._raw_subs: list[RawSubscription] = []
+        self._receive_only: set[bytes] | None = None      # see receive_only
         self._pubs: dict[str, Publisher] = {}
         self._latched: list[Publisher] = []
         self._last_body: dict[str, bytes] = {}   # topic -> last body: a latched re-send is dropped
@@ -312,7 +317,8 @@ class Node:
             security.secure_client(self._sub, self._keys)
         self._rcvtimeo = -1
         self._info = discovery.NodeInfo(self.name, os.getpid(), endpoint, started_ns=time.time_ns(),
-                                        pidns=discovery.namespace("pid"), netns=discovery.namespace("net"))
+                                        pidns=discovery.namespace("pid"), netns=discovery.namespace("net"),
+                                        params=dict(self.params))   # for `slip param`
         self._discovery = discovery.Discovery(self._dir, log=lambda text: self.warn(text))
         self._connected: set[str] = set()
         self._retiring: dict[str, float] = {}   # endpoint -> monotonic time to disconnect
@@ -404,6 +410,26 @@ class Node:
         self._info.subscribes[topic or ANY_TOPIC] = "raw"
         self._after_subscribe()
         return sub
+
+    def receive_only(self, topics: set[str]) -> None:
+        """Narrows this node's every-topic raw subscription to `topics` (called again with
+        another set: the new one): for a reader of every topic that needs few of them at a time
+        (the viewer bridge: what its clients watch). Publishers then send it only those; it still
+        connects to every publisher, and announces itself as an every-topic reader "on demand"."""
+        if not any(raw.topic == "" for raw in self._raw_subs):
+            raise ValueError("receive_only narrows an every-topic raw subscription; there is none")
+        old = self._receive_only
+        new = {M.topic_frame(self.resolve_topic(t)) for t in topics}
+        if old is None:
+            self._info.subscribes[ANY_TOPIC] = ON_DEMAND
+            self._announce()
+        for frame in sorted(new - (old or set())):
+            self._sub.setsockopt(zmq.SUBSCRIBE, frame)
+        if old is None:
+            self._sub.setsockopt(zmq.UNSUBSCRIBE, b"")      # after the new ones: no gap
+        for frame in sorted((old or set()) - new):
+            self._sub.setsockopt(zmq.UNSUBSCRIBE, frame)
+        self._receive_only = new
 
     @property
     def readers(self) -> dict[str, list[str]]:

@@ -218,6 +218,7 @@ def register_topic(subparsers) -> None:
     p.set_defaults(func=_guard(cmd_topic_hz))
     introspect.register_topic(tsub, graph, _guard)
     introspect.register_node(subparsers, graph, _guard)
+    introspect.register_param(subparsers, graph, _guard)
 
 
 def register_bag(subparsers) -> None:

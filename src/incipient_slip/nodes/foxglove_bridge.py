@@ -7,6 +7,11 @@ Connect the viewer to ws://127.0.0.1:8765 (docs/tools.md, "Live view"). The prot
 authentication: the bridge binds the loopback address unless `host` says otherwise, and then
 prints a warning. It only reads the graph; the server refuses client publishing, parameters and
 services (graph/live_view.py). Needs the `[view]` extra (foxglove-sdk).
+
+It costs the graph little: it receives only the topics some client subscribes to (within
+FOLLOW_S of the subscription; a topic's publisher sends it nothing otherwise), thins P_AC for
+the viewer (graph/live_view.py) and runs at a lower CPU priority (`priority`; docs/performance.md,
+"Live view").
 """
 from __future__ import annotations
 
@@ -18,12 +23,16 @@ import time
 from incipient_slip.errors import EXIT_USAGE, UsageError
 from incipient_slip.graph import discovery
 from incipient_slip.graph.bag_export import AUDIO_RATE_HZ
-from incipient_slip.graph.live_view import EXTRA_HINT, LiveView, is_loopback
+from incipient_slip.graph.live_view import (
+    AUDIO_BLOCK_FRAMES, EXTRA_HINT, PAC_VIEW_HZ, LiveView, is_loopback,
+)
 from incipient_slip.graph.params import Param
 from incipient_slip.graph.runtime import ANY_TOPIC, POLL_S, Node, run_node
 from incipient_slip.messages import PAC_RATE_HZ, Message, MessageError
 
 __all__ = ["FoxgloveBridge", "register"]
+
+FOLLOW_S = 0.1      # how often the topics received follow what the clients subscribe to
 
 
 class FoxgloveBridge(Node):
@@ -33,6 +42,11 @@ class FoxgloveBridge(Node):
               "backlog": Param(1024, lo=1, help="messages queued per client; the oldest go first"),
               "audio_rate_hz": Param(AUDIO_RATE_HZ, lo=PAC_RATE_HZ,
                                      help=f"P_AC audio rate: a multiple of {PAC_RATE_HZ} Hz"),
+              "audio_block_frames": Param(AUDIO_BLOCK_FRAMES, lo=1, help="P_AC frames per audio "
+                                          "message (10 = 100 ms)"),
+              "pac_view_hz": Param(PAC_VIEW_HZ, lo=0.0, help="P_AC frames a second (of their "
+                                   "stamps) on the BiotacPac channel; 0 = every frame (the audio "
+                                   "channel always has every sample)"),
               "wait_for_client_s": Param(0.0, lo=0.0, help="hold this node's start (and a launch's "
                                          "sources) until a viewer subscribes, at most this long"),
               "priority": Param("low", choices=("idle", "low", "normal"),
@@ -51,13 +65,17 @@ class FoxgloveBridge(Node):
             self.warn(f"serving on {host}, not the loopback address: anyone who reaches it sees "
                       f"the whole graph (the Foxglove WebSocket protocol has no authentication)")
         self.view = LiveView(host, self.param("port"), backlog=self.param("backlog"),
-                             audio_rate_hz=self.param("audio_rate_hz"))
+                             audio_rate_hz=self.param("audio_rate_hz"),
+                             pac_view_hz=self.param("pac_view_hz"),
+                             audio_block_frames=self.param("audio_block_frames"))
         self.on_shutdown(self.view.close)
         self.log(f"serving ws://{host}:{self.view.port} (read-only)")
         self.create_raw_subscription(self.on_message)
-        # not 1.0 s: two timers due at once with equal periods make runtime.Timer compare callbacks
-        self.create_timer(0.7, self.offer_announced)
+        self.untyped: set[str] = set()     # announced topics of no known type (replay's "raw")
+        self.create_timer(1.0, self.offer_announced)
+        self.create_timer(FOLLOW_S, self.follow_clients)
         self.offer_announced()
+        self.follow_clients()
         if self.param("wait_for_client_s") > 0:
             self.wait_for_client(self.param("wait_for_client_s"))
 
@@ -72,7 +90,14 @@ class FoxgloveBridge(Node):
         # Node keeps its graph directory private; _dir is where this node announced itself.
         for info in discovery.scan(self._dir, clean=False):
             for topic, type_name in info.publishes.items():
-                self.view.offer(topic, type_name)
+                if not self.view.offer(topic, type_name):
+                    self.untyped.add(topic)
+
+    def follow_clients(self) -> None:
+        """Receives only the topics some client watches (publishers send the bridge nothing
+        else), and those of unknown type until their first message tells the type."""
+        self.untyped -= self.view.channels.keys()
+        self.receive_only(self.view.watched() | self.untyped)
 
     def wait_for_client(self, timeout_s: float) -> None:
         """Blocks (before this node says hello, so a launch's sources wait too) until a viewer
@@ -83,14 +108,30 @@ class FoxgloveBridge(Node):
             if time.monotonic() > deadline:
                 self.warn(f"no viewer subscribed within {timeout_s:g} s; going on")
                 return
+        self.follow_clients()       # before this node's hello: the sources' first messages come
 
 
 def lower_priority(priority: str) -> None:
-    """Puts this process (its threads started from now on) below the graph's nodes."""
+    """Puts this process (its threads started from now on) below the graph's nodes.
+
+    Linux's scheduler shares the CPU between session groups ("autogroups", when the kernel has
+    them on and the process is in the root CPU cgroup) before it shares a group's time between its
+    processes by nice: a bridge alone in its session (a node started with `setsid`, as
+    `bench/bench_loop.py` and some supervisors do) would weigh as much as each of the loop's
+    nodes whatever its own nice. So when this process leads its session, its group's nice is
+    lowered as well; a bridge in a shared session (a launch's, a terminal's) leaves that alone."""
+    if priority == "normal":
+        return
     if priority == "idle" and hasattr(os, "SCHED_IDLE"):
         os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
-    elif priority in ("idle", "low"):       # no SCHED_IDLE (not Linux): nice is what there is
+    else:                                   # no SCHED_IDLE (not Linux): nice is what there is
         os.nice(10)
+    if os.getsid(0) == os.getpid():
+        try:
+            with open("/proc/self/autogroup", "w") as f:
+                f.write("19" if priority == "idle" else "10")
+        except OSError:                     # no autogroups here, or not allowed: nothing to do
+            pass
 
 
 def main(argv=None):
