@@ -104,3 +104,16 @@ def test_start_up_waits_for_the_rig_and_then_a_silent_graph_is_a_fault(graph, tm
     node.pubs[RobotState].publish(RobotState(normal_force_kpa=2.9, stamp_ns=1))   # the rig is up
     assert proc.wait(60) == 3          # then no command within 1 s: a fault
     assert "graph silent" in proc.stderr.read().decode()
+
+
+def test_lockstep_reaches_the_judge(graph):
+    """`lockstep:=true` (stabilize.yaml passes it on the simulated rig) makes the judge wait for
+    the rig's tick, never for data_wait_s; the parameter was declared but not handed on."""
+    from incipient_slip.nodes.supervisor import Supervisor
+    for lockstep in (True, False):
+        node = Supervisor(params={"lockstep": lockstep, "summary_path": "", "quiet": True},
+                          graph_dir=graph.dir, heartbeat_s=0)
+        try:
+            assert node.judge.lockstep is lockstep
+        finally:
+            node.close()
