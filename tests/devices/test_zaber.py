@@ -238,3 +238,37 @@ def test_the_client_takes_replies_whose_ids_are_padded_or_not(stage, pad_ids):
     client.move_abs_mm(1.0)
     client.wait_idle(5.0)
     assert client.position_mm() == pytest.approx(1.0, abs=1e-3)
+
+
+class StarvedPort(ScriptedPort):
+    """The reply is in the buffer, but this process was not run until after the deadline."""
+
+    def __init__(self, clock):
+        super().__init__([])
+        self.clock, self.starved = clock, False
+
+    def readline(self) -> bytes:
+        if not self.starved:            # the first read returns after the process waited 2 s
+            self.starved = True
+            self.clock.t += 2.0
+            return b""
+        return super().readline()
+
+
+def test_a_reply_that_came_while_the_host_was_starved_is_taken_not_a_timeout():
+    """The timeout is the device's silence, never this process's lateness: on a loaded host the
+    reply sits in the buffer when the deadline has passed (before: ZaberTimeout after 3 tries)."""
+    class Clock:
+        t = 0.0
+
+        def __call__(self):
+            return self.t
+    clock = Clock()
+    client = z.ZaberClient(StarvedPort(clock), microsteps_per_mm=1.0, timeout_s=0.5, clock=clock)
+    reply = client.command("get pos")
+    assert (reply.message_id, reply.data) == (0, "1234") and client.stats["timeouts"] == 0
+    # a device that is silent is still a timeout, after one read past the deadline
+    silent = z.ZaberClient(type("Silent", (), {"write": lambda s, d: None, "readline": lambda s: b""})(),
+                           microsteps_per_mm=1.0, timeout_s=0.01)
+    with pytest.raises(z.ZaberTimeout):
+        silent.status()
