@@ -41,6 +41,25 @@ DEFAULT_MAX_STEP_KPA = 0.5      # rate limit per period (the collection grid mov
 DEFAULT_INITIAL_FORCE_KPA = 2.9  # paper: "no action" ends at 2.94 kPa, i.e. the initial grip
 DEFAULT_MIN_FORCE_KPA = 1.1     # lowest F_N of the paper's collection grid: contact is kept
 
+# The simulated scene each closed-loop method runs on: the PZT on only for injection, no
+# vibration path for the electrode methods, mechanics only for no action (the rig's physics
+# streams are the same). The one table: rig_sim and emulated_rig read it (scene:="" follows
+# method:=, as stabilize.yaml and collect.yaml leave it) and so do the experiments.
+SCENE_OF_METHOD = {"injection": "paper", "vibrotactile": "no_injection", "e19": "electrodes_only",
+                   "e10": "electrodes_only", "e4": "electrodes_only", "e1": "electrodes_only",
+                   "none": "mechanics"}
+
+
+def scene_of(scene: str, method: str) -> str:
+    """`scene`, or when it is "" the scene of `method` (SCENE_OF_METHOD); ValueError for an
+    unknown method."""
+    if scene:
+        return scene
+    if method not in SCENE_OF_METHOD:
+        raise ValueError(f"no scene for method {method!r} (known: {', '.join(SCENE_OF_METHOD)}); "
+                         f"name one with scene:=")
+    return SCENE_OF_METHOD[method]
+
 
 @dataclass(frozen=True)
 class ControlParams:

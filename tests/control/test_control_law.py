@@ -387,3 +387,16 @@ def test_a_period_the_robot_stamped_no_force_in_is_judged_once_a_later_force_com
         judge.close(float(t))
     assert judge.steps == 3 and judge.traces["force_kpa"] == [2.0, 2.0, 4.0]
     assert judge.summary()["periods_without_force"] == 1
+
+
+def test_one_table_gives_each_method_its_scene():
+    """control.SCENE_OF_METHOD is the one method-to-scene table (rig_sim, emulated_rig and the
+    experiments read it; stabilize.yaml's nested $(eval) is gone): every method has a scene."""
+    from incipient_slip.control import SCENE_OF_METHOD, scene_of
+    from incipient_slip.models.features import METHODS
+    assert set(SCENE_OF_METHOD) == set(METHODS) | {"none"}
+    assert [scene_of("", m) for m in ("injection", "vibrotactile", "e19", "e1", "none")] == [
+        "paper", "no_injection", "electrodes_only", "electrodes_only", "mechanics"]
+    assert scene_of("paper", "e19") == "paper"          # a scene named wins
+    with pytest.raises(ValueError, match="known: injection"):
+        scene_of("", "e20")

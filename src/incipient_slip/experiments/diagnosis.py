@@ -31,7 +31,7 @@ from .settings import Settings
 NAME = "diagnosis"
 HELP = "why the closed loop fails on the simulated rig: estimate vs pseudo label vs truth"
 DOC = "stabilization.md"
-SCENE_OF = {"injection": "paper", "e19": "electrodes_only"}
+SCENE_OF = {m: control.SCENE_OF_METHOD[m] for m in ("injection", "e19")}
 METHODS = tuple(SCENE_OF)
 TRAINING_SEED, TRAINING_SERIES = 7, 100      # the shipped models' data set (experiments.models)
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 import os
 import tempfile
 
+from incipient_slip import control
 from incipient_slip.devices.emulated_rig import EmulatedRig
 from incipient_slip.errors import EXIT_FAULT
 from incipient_slip.graph.params import Param, ParamError
@@ -35,7 +36,8 @@ class EmulatedRigNode(Node):
     PARAMS = {
         "dir": Param("", help="directory of the pty links biotac, zaber and the PZT sink pzt.wav "
                               "('' = a new temp dir)"),
-        "scene": Param("paper", help="simulator scene"),
+        "scene": Param("", help='simulator scene; "": the scene of the method (control.SCENE_OF_METHOD)'),
+        "method": Param("injection", help='the closed loop\'s method, whose scene scene:="" runs'),
         "material": Param("", help="object material ('' = the scene's first)"),
         "seed": Param(0, lo=0, help="seed of the simulated contact"),
         "robot_address": Param("127.0.0.3", help="loopback address of the fake UR controller"),
@@ -59,7 +61,8 @@ class EmulatedRigNode(Node):
                       f"the emulated devices can be starved, which the hardware never is; give the "
                       f"user an RLIMIT_NICE (ulimit -e) or run with CAP_SYS_NICE")
         try:
-            self.rig = EmulatedRig(directory, scene=p("scene"), material=p("material"), seed=p("seed"),
+            scene = control.scene_of(p("scene"), p("method"))
+            self.rig = EmulatedRig(directory, scene=scene, material=p("material"), seed=p("seed"),
                                    robot_address=p("robot_address"),
                                    natnet_command_port=p("natnet_command_port"),
                                    natnet_data_port=p("natnet_data_port"), start_mm=p("start_mm"),
@@ -70,7 +73,7 @@ class EmulatedRigNode(Node):
         self.on_shutdown(self.rig.stop)
         self.log(f"BioTac bridge {self.rig.biotac_link}, Zaber {self.rig.zaber_link}, NatNet "
                  f"127.0.0.1:{p('natnet_command_port')}, UR {p('robot_address')}, PZT sink "
-                 f"{self.rig.pzt_path}; scene {p('scene')}, material {self.rig.shared.rig.material}, "
+                 f"{self.rig.pzt_path}; scene {scene}, material {self.rig.shared.rig.material}, "
                  f"seed {p('seed')}, real time, nice {os.getpriority(os.PRIO_PROCESS, 0)}")
         self.logged = 0
         self.create_timer(p("tick_s"), self.tick)

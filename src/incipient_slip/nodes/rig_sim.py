@@ -80,7 +80,8 @@ class RigSim(Node):
     OPTIONAL_INPUTS = frozenset({PztCommand.TOPIC})     # the scene sets the injection; a command may switch it
     OUTPUTS = {t.TOPIC: t for t in (BiotacPac, BiotacSlow, ObjectPose, PztState, RobotState, SimTruth, ActuatorState)}
     PARAMS = {
-        "scene": Param("paper", help="scene file or name (scenes/)"),
+        "scene": Param("", help='scene file or name (scenes/); "": the scene of the method (control.SCENE_OF_METHOD)'),
+        "method": Param("injection", help='the closed loop\'s method, whose scene scene:="" runs'),
         "material": Param("", help='object material ("": the scene\'s first)'),
         "seed": Param(0, lo=0, help="the rig's seed"),
         "protocol": Param("closed_loop", choices=PROTOCOLS, help="closed_loop: apply /grip/command; collection: the data-set forces"),
@@ -100,8 +101,8 @@ class RigSim(Node):
     def __init__(self, **kwargs):
         super().__init__("rig_sim", **kwargs)
         try:
-            scene = load_scene(self.param("scene"))
-        except SceneError as exc:        # run_node reports a ParamError in one line, exit 2
+            scene = load_scene(control.scene_of(self.param("scene"), self.param("method")))
+        except (SceneError, ValueError) as exc:        # run_node reports a ParamError in one line, exit 2
             raise ParamError(f"node {self.name!r}: parameter 'scene': {exc}") from None
         material = self.param("material") or scene.materials[0]
         if material not in scene.materials:
