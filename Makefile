@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-load test-slow bench bench-graph bench-curve bench-bag bench-sim bench-estimator bench-loop bench-loop-viewer bench-emulated-load clean
+.PHONY: demo test test-load test-slow bench bench-graph bench-cli bench-curve bench-bag bench-sim bench-estimator bench-loop bench-loop-viewer bench-emulated-load clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -52,10 +52,16 @@ clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis
 
 # Benchmarks print ratios measured side by side in one run; results go to docs/performance.md.
-bench: bench-graph bench-curve bench-bag bench-sim bench-estimator bench-loop
+bench: bench-graph bench-cli bench-curve bench-bag bench-sim bench-estimator bench-loop
 
+# with the zenoh reference peer (the [bench] extra) beside the graph and raw pyzmq
 bench-graph: $(STAMP)
+	$(BIN)/pip install --quiet -e '.[bench]'
 	$(BIN)/python bench/bench_graph.py
+
+# start-up of `slip topic --help` and `slip topic list` beside `slip --help` (every module)
+bench-cli: $(STAMP)
+	$(BIN)/python bench/bench_cli.py
 
 bench-curve: $(STAMP)
 	$(BIN)/python bench/bench_curve.py

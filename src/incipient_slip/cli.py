@@ -1,8 +1,11 @@
 """The `slip` command: one entry point whose sub-commands live beside the code they drive.
 
-Each area module exposes `register(subparsers)`; this file only lists the modules, so adding a
-command never means editing another area's code. A handler returns an exit code or raises
-`UsageError`, which `main` prints as one line on stderr (exit 2, no traceback).
+Each area module exposes `register(subparsers)`; this file only lists the modules and the command
+words each registers, so adding a command never means editing another area's code. `slip WORD ...`
+imports only the module of WORD (a command's modules load only when it runs: `slip topic list`
+never imports scipy); `slip`, `slip --help` and an unknown word import them all. A handler returns
+an exit code or raises `UsageError`, which `main` prints as one line on stderr (exit 2, no
+traceback).
 """
 from __future__ import annotations
 
@@ -13,16 +16,26 @@ import sys
 
 from incipient_slip.errors import EXIT_INTERRUPTED, EXIT_USAGE, UsageError
 
-# each module defines register(subparsers) -> None
-COMMAND_MODULES = (
-    "incipient_slip.graph.tools",        # topic list|echo|hz, bag record|play|info
-    "incipient_slip.sim.cli",            # dataset
-    "incipient_slip.models.cli",         # train, evaluate
-    "incipient_slip.experiments.cli",    # reproduce NAME|--list
-    "incipient_slip.experiments.run_plot",  # run plot SUMMARY
-    "incipient_slip.nodes.device_tools", # robot recover, rig check
-    "incipient_slip.nodes.foxglove_bridge",  # view
-)
+# "module" (its register) or "module:function": register(subparsers) -> None, adding exactly
+# these commands (a test checks)
+COMMANDS = {
+    "incipient_slip.graph.tools:register_topic": ("topic", "node"),
+    "incipient_slip.graph.tools:register_bag": ("bag",),
+    "incipient_slip.sim.cli": ("dataset",),
+    "incipient_slip.models.cli": ("train", "evaluate"),
+    "incipient_slip.experiments.cli": ("reproduce",),
+    "incipient_slip.experiments.run_plot": ("run",),
+    "incipient_slip.nodes.device_tools": ("robot", "rig"),
+    "incipient_slip.nodes.foxglove_bridge": ("view",),
+}
+COMMAND_MODULES = tuple(COMMANDS)
+
+
+def modules_for(argv: list[str], modules: tuple[str, ...] = COMMAND_MODULES) -> tuple[str, ...]:
+    """The modules `slip argv` needs: the one registering its command word, else all."""
+    word = next((a for a in argv if not a.startswith("-")), None)
+    mine = tuple(m for m in modules if word in COMMANDS.get(m, ()))
+    return mine or modules
 
 
 def build_parser(modules: tuple[str, ...] = COMMAND_MODULES) -> argparse.ArgumentParser:
@@ -33,8 +46,9 @@ def build_parser(modules: tuple[str, ...] = COMMAND_MODULES) -> argparse.Argumen
         "the simulated rig, the slip models and the paper's experiments.",
     )
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for module_name in modules:
-        importlib.import_module(module_name).register(subparsers)
+    for entry in modules:
+        module_name, _, function = entry.partition(":")
+        getattr(importlib.import_module(module_name), function or "register")(subparsers)
     return parser
 
 
@@ -49,7 +63,8 @@ def main(argv: list[str] | None = None, modules: tuple[str, ...] = COMMAND_MODUL
     """Runs `slip` (or, with `modules`, a subset of its commands); returns the exit code."""
     # `slip ... | head` should end quietly when the reader goes away, like any Unix tool.
     signal.signal(signal.SIGPIPE, signal.SIG_DFL)
-    args = build_parser(modules).parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser(modules_for(argv, modules)).parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except UsageError as exc:

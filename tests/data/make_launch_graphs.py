@@ -18,7 +18,8 @@ REPO = Path(__file__).resolve().parents[2]
 CASES = ([("stabilize.yaml", {"rig": rig, "method": m}) for rig in ("sim", "replay", "emulated", "hardware")
           for m in ("injection", "vibrotactile", "e19", "none")]
          + [("collect.yaml", {"rig": rig, "injection": i}) for rig in ("sim", "emulated", "hardware")
-            for i in ("true", "false")])
+            for i in ("true", "false")]
+         + [("identify.yaml", {"rig": rig}) for rig in ("sim", "emulated", "hardware")])
 
 
 def normalized(value):

@@ -11,7 +11,7 @@ import serial
 
 from incipient_slip.devices.zaber_emulator import ZaberEmulator
 from incipient_slip.graph.runtime import Node
-from incipient_slip.messages import ActuatorState, BiotacStatus, GripCommand
+from incipient_slip.messages import ActuatorCommand, ActuatorState, BiotacStatus, GripCommand
 from incipient_slip.nodes.linear_actuator import LinearActuator, step_target_mm
 
 pytestmark = pytest.mark.timeout(60)
@@ -28,6 +28,7 @@ class Probe(Node):
         self.states: list[ActuatorState] = []
         self.create_subscription(ActuatorState, self.states.append)
         self.grip = self.create_publisher(GripCommand)
+        self.actuator = self.create_publisher(ActuatorCommand)
         self.biotac = self.create_publisher(BiotacStatus)
 
 
@@ -144,3 +145,29 @@ def test_wait_tare_holds_step_0_until_the_biotac_reader_is_tared(rig):
     probe.biotac.publish(BiotacStatus(tare_state="done"))
     run((node, probe), lambda: len(probe.states) == 5)
     assert [s.step_index for s in probe.states] == [0, 1, 2, 3, 4]
+
+
+def test_commanded_mode_goes_where_each_command_says_and_ticks_with_its_period(rig):
+    emulator, node, probe = rig(mode="commanded", limit_max_mm=10.0)
+    run((node, probe), lambda: node._started)
+    for k, position in enumerate((1.5, 0.25, 3.0)):
+        probe.actuator.publish(ActuatorCommand(position_mm=position, period=k))
+        run((node, probe), lambda: len(probe.states) == k + 1)
+        assert probe.states[-1].step_index == k
+        assert probe.states[-1].position_mm == pytest.approx(2.0 + position, abs=1e-4)   # from start_mm
+    # an older or repeated period is refused and counted; a target past the limit is clamped
+    probe.actuator.publish(ActuatorCommand(position_mm=4.0, period=1))
+    probe.actuator.publish(ActuatorCommand(position_mm=40.0, period=3))
+    run((node, probe), lambda: len(probe.states) == 4)
+    assert node.refused == 1 and probe.states[-1].position_mm == pytest.approx(10.0, abs=1e-4)
+    assert emulator.position_mm == pytest.approx(10.0, abs=1e-4)
+
+
+def test_commanded_mode_leaves_the_spring_slack_when_the_node_stops(rig):
+    emulator, node, probe = rig(mode="commanded")
+    run((node, probe), lambda: node._started)
+    probe.actuator.publish(ActuatorCommand(position_mm=6.0, period=0))
+    run((node, probe), lambda: len(probe.states) == 1)
+    assert emulator.position_mm == pytest.approx(8.0, abs=1e-4)
+    node.close()                                    # the shutdown hooks run: back to start_mm
+    assert emulator.position_mm == pytest.approx(2.0, abs=1e-4)

@@ -256,3 +256,34 @@ def test_a_latched_state_reaches_a_late_subscriber_and_no_one_gets_it_twice(grap
         assert [m.enabled for m in first] == [True, False] and [m.enabled for m in later] == [True, False]
         assert later[0].intensity_db == -6.0 and raw.count("/pzt/state") == 2
         assert early.duplicates >= 1
+
+
+def test_a_callback_that_shuts_down_gets_no_further_message_from_the_queue(graph):
+    # spin_once drains queued messages after the one it waited for; shutdown() in a callback
+    # must end that drain (no callback after shutdown). inproc puts every sent message in the
+    # reader's queue before send returns, so all of them are queued when the node spins.
+    import zmq
+
+    with Node("reader", heartbeat_s=0) as node:
+        got = []
+
+        def on_pac(msg):
+            got.append(msg.seq)
+            node.shutdown()
+
+        node.create_subscription(M.BiotacPac, on_pac)
+        xpub = zmq.Context.instance().socket(zmq.XPUB)
+        try:
+            xpub.bind("inproc://drain-test")
+            node._sub.connect("inproc://drain-test")
+            while xpub.recv() != b"\x01" + M.topic_frame(M.BiotacPac.TOPIC):
+                pass
+            for seq in range(20):
+                xpub.send_multipart([M.topic_frame(M.BiotacPac.TOPIC), M.encode(pac(seq), seq=seq)])
+            assert node.spin() == 0
+            assert got == [0]
+            node._stop = False          # the rest is still queued: the next spin reads it
+            node.spin_once(0.5)
+            assert got == [0, 1]
+        finally:
+            xpub.close(0)

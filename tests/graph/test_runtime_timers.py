@@ -28,16 +28,30 @@ def test_a_due_timer_runs_after_the_messages_already_received(graph):
         heard, seen_by_timer = [], []
         node.create_subscription(Heartbeat, heard.append)
         node.create_timer(0.001, lambda: seen_by_timer.append(len(heard)))
-        waiting = [[Heartbeat.TOPIC.encode() + b"\0", M.encode(Heartbeat(node="other", pid=1), seq=i)]
-                   for i in range(5)]
+        frames = []
+        for i in range(5):
+            frames += [Frame(Heartbeat.TOPIC.encode() + b"\0", True),
+                       Frame(M.encode(Heartbeat(node="other", pid=1), seq=i), False)]
 
-        def recv(flags=0):                 # the node's socket after the stall: 5 heartbeats waiting
-            if waiting:
-                return waiting.pop(0)
-            raise zmq.Again()
-        node._sub_recv = recv
+        class Socket:                      # the node's socket after the stall: 5 heartbeats waiting
+            def recv(self, flags=0, copy=True):
+                if frames:
+                    return frames.pop(0)
+                raise zmq.Again()
+
+            def setsockopt(self, *args):
+                pass
+        real, node._sub = node._sub, Socket()
         node._timers[0].due = 0.0          # the timer came due during the stall
         node.spin_once(0.0)
+        node._sub = real
         assert seen_by_timer[:1] == [5]
     finally:
         node.close()
+
+
+class Frame:
+    """What zmq's recv(copy=False) returns, as the runtime reads it."""
+
+    def __init__(self, data: bytes, more: bool):
+        self.bytes, self.more = data, more

@@ -26,20 +26,37 @@ def test_a_forged_command_or_state_is_refused_and_counted(graph, probe, msg_type
         real_pub, forged_pub = writer.create_publisher(msg_type), forger.create_publisher(msg_type)
         assert real_pub.wait_for_subscribers(1, 20)
         # the forger sends as soon as the reader subscribes to it, or once it was refused
-        probe.until(lambda: forged_pub.subscriber_count() or reader.refused, 20,
+        probe.until(lambda: forged_pub.subscriber_count() or reader.refused_writers, 20,
                     nodes=[reader, writer, forger], what="the reader connected to or refused the forger")
         forged_pub.publish(msg_type(**FORGED[msg_type]))
         for i in range(3):
             real_pub.publish(REAL[msg_type](i))
         forged_pub.publish(msg_type(**FORGED[msg_type]))
         # before this fix the forged messages arrive (in any order with the real ones)
-        probe.until(lambda: len(got) >= 3 and (len(got) > 3 or reader.refused), 20,
+        probe.until(lambda: len(got) >= 3 and (len(got) > 3 or reader.refused_writers), 20,
                     nodes=[reader, writer, forger], what="the real messages and the forger's fate")
         assert [m for m in got if m.normal_force_kpa == 99.0] == [] if msg_type is M.GripCommand else \
             [m for m in got if not m.enabled] == []
-        assert len(got) == 3 and list(reader.refused) == [("forger", forger._info.pid)]
-        assert "whose writer in this launch is " + writer_name in reader.refused[("forger", forger._info.pid)]
+        assert len(got) == 3 and list(reader.refused_writers) == [("forger", forger._info.pid)]
+        assert "whose writer in this launch is " + writer_name in reader.refused_writers[("forger", forger._info.pid)]
         assert forged_pub.subscriber_count() == 0
+
+
+def test_a_node_with_a_refused_counter_of_its_own_survives_a_refused_writer(graph, probe):
+    """Device nodes count refused commands in `self.refused`; the runtime's own record of refused
+    writers once had that name, so the first stray writer crashed ur5 and linear_actuator with a
+    TypeError (seen when another launch shared the default graph)."""
+    class Counting(Node):
+        def __init__(self, **kw):
+            super().__init__("reader", writers={M.GripCommand.TOPIC: ["grip_controller"]}, **kw)
+            self.refused = 0
+
+    with Counting() as reader, Node("forger") as forger:
+        reader.create_subscription(M.GripCommand, lambda m: None)
+        forger.create_publisher(M.GripCommand)
+        probe.until(lambda: reader.refused_writers, 20, nodes=[reader, forger], what="the forger refused")
+        reader.spin_once(0.01)
+        assert reader.refused == 0 and list(reader.refused_writers) == [("forger", forger._info.pid)]
 
 
 def test_the_launch_tells_each_node_the_writers_of_its_inputs():

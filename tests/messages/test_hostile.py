@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from incipient_slip import messages as M
 from incipient_slip.graph.runtime import Node
-from incipient_slip.messages.codec import _validate_fields
+from incipient_slip.messages.codec import _validate_fields, decode_named
 from incipient_slip.messages.fields import INT_RANGES, Array, field_specs
 
 from test_messages import any_message
@@ -213,8 +213,8 @@ def test_construction_refuses_lossy_conversions_and_overflow():
         M.BiotacPac(pac_counts=[40000] * 22)
     with pytest.raises(M.MessageError, match="pac_counts"):
         M.BiotacPac(pac_counts=["1"] * 22)
-    with pytest.raises(M.MessageError, match="move_mm"):
-        M.ActuatorCommand(move_mm=10 ** 400)
+    with pytest.raises(M.MessageError, match="position_mm"):
+        M.ActuatorCommand(position_mm=10 ** 400)
     assert M.BiotacPac(pac_counts=[2.0] * 22).pac_counts.tolist() == [2] * 22
 
 
@@ -260,8 +260,8 @@ def test_mutated_fields_of_every_type_decode_to_a_valid_message_or_message_error
     if isinstance(result, M.Message):
         assert_valid(result)
         assert any_result == result
-        # the generated fast path never accepts what the naming general path refuses
-        assert _validate_fields(cls, msgpack.unpackb(body, raw=False), cls.TOPIC) == result
+        # the wire (msgspec) path never accepts what the naming path refuses, nor builds another message
+        assert decode_named(body, cls) == result
 
 
 @settings(max_examples=300, deadline=None)
@@ -335,3 +335,15 @@ def test_any_exception_from_the_decoder_is_a_counted_drop(graph, monkeypatch):
         pub.publish(sample(M.BiotacPac))
         _spin_until(reader, lambda: got)
         assert (len(got), sub.dropped, reader.malformed) == (1, 1, 1)
+
+
+@pytest.mark.parametrize("cls", TYPES, ids=lambda c: c.__name__)
+def test_a_body_without_its_type_is_refused_by_decode_and_decode_any(cls):
+    # msgspec does not require the tag of a lone tagged Struct: the wire path must still
+    # refuse a body that names no type (found by the mutation test above)
+    body = body_of(sample(cls))
+    assert M.decode(pack(body), cls) == sample(cls)      # the wire path is built and in use
+    del body["type"]
+    for fn in (lambda b: M.decode(b, cls), M.decode_any):
+        with pytest.raises(M.MessageError, match="type"):
+            fn(pack(body))

@@ -28,7 +28,7 @@ PINS = {
     "PztState": (1, "420c26496bf8"),
     "PztOutput": (1, "1311694450e4"),
     "ObjectPose": (1, "8a21f7fa9c0c"),
-    "ActuatorCommand": (1, "03b49e889245"),
+    "ActuatorCommand": (2, "7fcdcd89fede"),
     "ActuatorState": (1, "b016442adcff"),
     "GripCommand": (1, "451d8a9c6d3f"),
     "RobotState": (2, "eca2e1a20c0a"),

@@ -1,6 +1,6 @@
 """Every import inside the package points down the layers (docs/design.md), checked by parsing.
 
-experiments -> nodes -> graph / models / sim / control -> messages; `models/` never reads the
+experiments -> nodes -> identify -> graph / models / sim / control -> messages; `models/` never reads the
 simulator and `sim/` never imports learning or control. `cluster` (dask tasks) sits below sim,
 models and experiments and imports only the leaves. Imports inside functions count too.
 """
@@ -22,8 +22,10 @@ ALLOWED = {
     "models": {"messages", "cluster"},
     "graph": {"messages"},
     "devices": {"messages", "sim"},         # emulators take their signal values from the simulated rig
-    "nodes": {"graph", "messages", "models", "sim", "control", "devices"},
-    "experiments": {"nodes", "graph", "messages", "models", "sim", "control", "devices", "cluster"},
+    # rig identification's protocols and fit: the paper's gross-slip rule (models.labels) and the clamps
+    "identify": {"control", "models", "messages"},
+    "nodes": {"graph", "messages", "models", "sim", "control", "devices", "identify"},
+    "experiments": {"nodes", "graph", "messages", "models", "sim", "control", "devices", "cluster", "identify"},
     "cli": {"graph", "sim", "models", "experiments"},
     "__init__": set(),
 }

@@ -75,7 +75,9 @@ def settings_from_args(args: argparse.Namespace, module) -> Settings:
         raise UsageError(f"--jobs must be >= 1, got {args.jobs}")
     quick = args.budget == "quick"
     work = args.out or runs_dir() / (f"{args.experiment}-quick" if quick else args.experiment)
-    docs = args.docs if args.docs is not None else (None if quick else docs_dir())
+    # an identified rig's prediction (`validation --params`) is that rig's, never the docs' page
+    own_rig = getattr(args, "params", None) is not None
+    docs = args.docs if args.docs is not None else (None if quick or own_rig else docs_dir())
     options = {k: v for k, v in vars(args).items() if k not in COMMON + ("func", "command", "experiment", "list")}
     return Settings(budget=args.budget, seed=seed, work=work, docs=docs, jobs=args.jobs,
                     progress=not args.quiet, options=options)

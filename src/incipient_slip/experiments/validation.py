@@ -91,6 +91,11 @@ def add_arguments(parser) -> None:
                         help=f"also sweep s_d over {SWEEP_SD} at each point with this many runs per method (default 0: no sweep)")
     parser.add_argument("--keep", type=Path, metavar="RESULTS_JSON",
                         help="a previous results.json whose points not run this time are kept in the report")
+    parser.add_argument("--params", type=Path, nargs="+", metavar="OVERLAY",
+                        help="params overlays of an identified rig (launch identify.yaml, docs/identification.md; "
+                             "one per material, the pad's values from the last): predict the Table for that rig "
+                             "on its identified materials at the values and at each end of their intervals, one at "
+                             "a time (no refit to the paper's targets); results and page go to --out")
     parser.add_argument("--workers", type=int, help="LocalCluster workers (default --jobs)")
     parser.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="a running dask scheduler instead of a LocalCluster")
 
@@ -172,10 +177,45 @@ def refit_task(name: str, overrides: dict, seed: int, refits=None) -> dict:
             "consistent": cal.consistent_with_open_loop(summ), "seconds": time.perf_counter() - t0}
 
 
+def merge_overlays(docs: list[dict]) -> dict:
+    """Return one overlay from several sessions of one rig (one per material): the materials of
+    all, the pad's and the rig's entries from the last; provenance lists every session."""
+    merged: dict = {"provenance": {}}
+    for doc in docs:
+        for section, entries in doc.items():
+            if section == "provenance":
+                continue
+            if section == "materials":
+                merged.setdefault("materials", {}).update(entries)
+            else:
+                merged.setdefault(section, {}).update(entries)
+    sessions = [d["provenance"] for d in docs]
+    last = sessions[-1]
+    merged["provenance"] = {**last, "material": ", ".join(str(p.get("material")) for p in sessions),
+                            "date": ", ".join(sorted({str(p.get("date")) for p in sessions})),
+                            "sessions": sessions}
+    return merged
+
+
+def overlay_points(doc: dict) -> dict[str, dict]:
+    """Return {point name: params} of an identified rig: the overlay's values, then each entry
+    with an interval at its low and high end (one at a time)."""
+    from incipient_slip.sim.scene import apply_overlay, load_params, overlay_entries
+
+    base, _, _ = load_params("default")
+    points = {"identified": apply_overlay(base, doc)}
+    for name, entry in overlay_entries(doc).items():
+        for end, v in zip(("low", "high"), entry.get("interval") or ()):
+            points[f"{'.'.join(name[-2:])} {end} {v:.3g}"] = apply_overlay(base, doc, values={name: v})
+    return points
+
+
 def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int, seed: int, work: str,
-               sweep_runs: int = 0, refits=None, fit: dict | None = None, fig_dir: str | None = None) -> dict:
+               sweep_runs: int = 0, refits=None, fit: dict | None = None, fig_dir: str | None = None,
+               params: dict | None = None, materials: tuple | None = None) -> dict:
     """Return everything of one point: its stage-1 refit (`fit` when already done), model scores and
-    the Table's runs."""
+    the Table's runs. With `params` (an identified rig's) there is no refit: the rig's own values,
+    and the Table runs on `materials` (the identified ones) only."""
     from incipient_slip.sim.rig import series_seed
     from incipient_slip.sim.scene import load_scene
     from incipient_slip.models.estimator_core import limit_blas_threads
@@ -184,9 +224,13 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
 
     limit_blas_threads(1)
     t0 = time.perf_counter()
-    fit = fit or refit_task(name, overrides, seed, refits)
-    scene = cal.with_values(load_scene("paper"), {tuple(k.split(".")): v
-                                                  for k, v in {**overrides, **fit["values"]}.items()})
+    if params is not None:
+        fit = {"values": {}, "summary": None, "refits": 0, "consistent": None}
+        scene = dataclasses.replace(load_scene("paper"), params=params)
+    else:
+        fit = fit or refit_task(name, overrides, seed, refits)
+        scene = cal.with_values(load_scene("paper"), {tuple(k.split(".")): v
+                                                      for k, v in {**overrides, **fit["values"]}.items()})
     summ, consistent = fit["summary"], fit["consistent"]
     d = Path(work) / _slug(name)
     dirs = {}
@@ -198,7 +242,7 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
         dirs[sname] = out
     study = run_study(dirs, quick=True, max_train=2000, grid_max=600, progress=False)
     models = {m: r.model for m, r in study.results.items()}
-    mats = scene.materials
+    mats = tuple(materials) if materials else scene.materials
     table = {}
     for method in TABLE_METHODS + ("oracle",):
         table[method] = [closed_loop(method, scene.params, mats[j % len(mats)], series_seed(seed + 2, j),
@@ -251,6 +295,21 @@ def run(settings) -> dict:
         except (OSError, ValueError) as e:
             raise UsageError(f"--keep {keep}: {e}") from None
     work = Path(settings.work) / "data"
+    rig_points, provenance, rig_materials = {}, None, None
+    if opt("params"):
+        from incipient_slip.sim.scene import SceneError, load_overlay
+        if settings.docs is not None:
+            raise UsageError("--params predicts the Table of one identified rig: its page goes to --out, not into --docs")
+        if joint or opt("points") or opt("sweep_at"):
+            raise UsageError("--params runs the identified rig's own points; leave out --joint, --points and --sweep-at")
+        try:
+            doc = merge_overlays([load_overlay(path) for path in opt("params")])
+            rig_points = overlay_points(doc)
+        except SceneError as exc:
+            raise UsageError(str(exc)) from None
+        provenance = doc["provenance"]
+        rig_materials = tuple(doc.get("materials", {})) or None   # the Table on the identified object(s)
+        names = list(rig_points)
     grid = joint_points()
     sweep_at = opt("sweep_at") or []
     for n in sweep_at:
@@ -266,11 +325,13 @@ def run(settings) -> dict:
             sweep = 0 if name in grid else opt("sweep_runs", 0)
         return client.submit(point_task, name, overrides, runs, n_series, steps, settings.seed, str(work),
                              sweep, opt("refits"), fit, str(settings.figures) if settings.figures else None,
-                             key=f"validation-{_slug(name)}-{settings.seed}-sweep{sweep}", pure=False)
+                             rig_points.get(name), rig_materials,
+                             key=f"validation-{_slug(name)}-{settings.seed}-sweep{sweep}",
+                             pure=False)
 
     done, joint_done, refit_only = {}, {}, {}
     with open_client(scheduler, opt("workers", settings.jobs)) as client:
-        futures = [table_future(n, POINTS[n]) for n in names] + [table_future(n, grid[n]) for n in sweep_at]
+        futures = [table_future(n, POINTS.get(n, {})) for n in names] + [table_future(n, grid[n]) for n in sweep_at]
         futures += [client.submit(refit_task, n, ov, settings.seed, opt("refits"),
                                   key=f"refit-{_slug(n)}-{settings.seed}", pure=False)
                     for n, ov in (grid.items() if joint else ()) if n not in sweep_at]
@@ -278,7 +339,8 @@ def run(settings) -> dict:
         queue = as_completed(futures)
         for fut in queue:     # a consistent joint refit adds its Table to the queue
             res, i = fut.result(), i + 1
-            verdict = "consistent" if res["consistent"] else "INCONSISTENT"
+            verdict = {True: "consistent", False: "INCONSISTENT", None: "the identified rig's values, not refitted"}[
+                res["consistent"]]
             if "runs" not in res:
                 refit_only[res["point"]] = res
                 if res["consistent"]:     # (a --sweep-at point has its Table with the sweep already)
@@ -294,11 +356,11 @@ def run(settings) -> dict:
                       f"({verdict} with T1-T4', T7)", flush=True)
     points = {n: p for n, p in old.get("points", {}).items() if n not in names}
     points.update(done)
-    points = {n: points[n] for n in POINTS if n in points}
+    points = {n: points[n] for n in (rig_points or POINTS) if n in points}
     for p in points.values():
         _summarize_point(p)
     kept_only = not done and old.get("points")      # the one-at-a-time points all come from --keep
-    out = {"budget": settings.budget, "runs": old.get("runs", runs) if kept_only else runs,
+    out = {"rig": provenance, "budget": settings.budget, "runs": old.get("runs", runs) if kept_only else runs,
            "series": old.get("series", n_series) if kept_only else n_series, "steps": steps, "points": points,
            "figure": _figure(points, settings.figures) if points else None}
     for p in joint_done.values():
@@ -340,7 +402,7 @@ def _figure(points: dict, fig_dir: Path) -> str:
     fig, ax = plt.subplots(figsize=(8, 0.5 * len(points) + 1.8))
     im = ax.imshow(grid, vmin=0, vmax=1, cmap="viridis", aspect="auto")
     ax.set_xticks(range(len(methods)), [LABELS[m] for m in methods], rotation=30, ha="right", fontsize=8)
-    ax.set_yticks(range(len(points)), [p + ("" if points[p]["consistent"] else " (inconsistent)") for p in points],
+    ax.set_yticks(range(len(points)), [p + (" (inconsistent)" if points[p]["consistent"] is False else "") for p in points],
                   fontsize=8)
     for i in range(grid.shape[0]):
         for j in range(grid.shape[1]):
@@ -425,8 +487,9 @@ def trajectory_figure(params: dict, models: dict, material: str, seed: int, fig_
 
 
 def _outcome(t: dict) -> str:
-    """A method's cell: success rate (mean final y, mean final F_N)."""
-    return f"{t['success']:.1f} ({t['y']:.2f} mm, {t['fn']:.1f} kPa)"
+    """A method's cell: success rate (mean final y, mean final F_N); no action has no rate."""
+    rate = "-" if t["success"] is None else f"{t['success']:.1f}"
+    return f"{rate} ({t['y']:.2f} mm, {t['fn']:.1f} kPa)"
 
 
 def _cell(v, fmt="{:.2f}") -> str:
@@ -435,6 +498,8 @@ def _cell(v, fmt="{:.2f}") -> str:
 
 def render(results: dict) -> dict:
     """Return the Table at the fitted point beside the paper's, and success over the uncertainty set."""
+    if results.get("rig"):
+        return {"validation-rig": render_rig(results)}
     pts = results["points"]
     head = (f"Simulated rig, not measurements: {results['runs']} runs per method, {results['steps']} steps, models "
             f"trained on {results['series']} simulated series per data set (quick SVR), budget `{results['budget']}`.")
@@ -490,6 +555,21 @@ def render(results: dict) -> dict:
         lines += ["", "Cells: success rate (mean final y, mean final F_N)."]
         blocks["validation-sweep"] = "\n".join(lines)
     return blocks
+
+
+def render_rig(results: dict) -> str:
+    """Return the Table predicted for an identified rig (`--params`), at its values and interval ends."""
+    rig, methods = results["rig"], list(TABLE_METHODS) + ["oracle"]
+    lines = [f"Prediction on the simulated rig fitted to an identified rig, not a measurement: rig "
+             f"{rig.get('rig')}, material {rig.get('material')}, identified {rig.get('date')} "
+             f"({rig.get('protocol')}); {results['runs']} runs per method, {results['steps']} steps, models trained "
+             f"on {results['series']} simulated series per data set (quick SVR), budget `{results['budget']}`.", "",
+             "| point | " + " | ".join(LABELS[m] for m in methods) + " |", "|---|" + "---|" * len(methods)]
+    for name, p in results["points"].items():
+        lines.append(f"| {name} | " + " | ".join(_outcome(p["table"][m]) for m in methods) + " |")
+    lines += ["", "Cells: success rate (mean final y, mean final F_N). Rows: the overlay's values, then each "
+              "identified parameter at one end of its interval with the others at their values."]
+    return "\n".join(lines)
 
 
 ANSWER_METHODS = ("oracle", "injection", "e10", "e19")

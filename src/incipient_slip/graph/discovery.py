@@ -118,6 +118,12 @@ def ipc_endpoint(directory: Path, name: str, pid: int) -> str:
     return "ipc://" + path
 
 
+# A node's INPUTS/OUTPUTS key (and announced topic) for "every topic": the recorder reads all,
+# replay writes what its file holds. The launcher counts such a node as a reader (writer) of
+# every topic of the launch.
+ANY_TOPIC = "*"
+
+
 @dataclass
 class NodeInfo:
     """One announced node: name, pid, endpoint, {topic: type name} published and subscribed."""

@@ -13,23 +13,24 @@ import json
 import os
 import time
 
-import yaml
-
 from incipient_slip.errors import UsageError
 from incipient_slip.graph import discovery
-from incipient_slip.graph.runtime import ANY_TOPIC, Node
-from incipient_slip.messages import (
-    DEFAULT_TOPICS, MESSAGE_TYPES, ActuatorCommand, GripCommand, Message, MessageError, PztCommand,
-    RobotRecover, to_plain,
-)
+from incipient_slip.graph.discovery import ANY_TOPIC
 
-__all__ = ["cmd_node_list", "cmd_node_info", "cmd_topic_info", "cmd_topic_pub", "COMMAND_TOPICS",
+# The messages, the runtime and yaml are imported by the commands that use them, not here:
+# registering these commands (`slip topic --help`) must not load numpy or zmq.
+
+__all__ = ["cmd_node_list", "cmd_node_info", "cmd_topic_info", "cmd_topic_pub", "command_topics",
            "DEVICE_NODES"]
 
-# topics whose readers move the rig or change the run
-COMMAND_TOPICS = frozenset(t.TOPIC for t in (GripCommand, ActuatorCommand, PztCommand, RobotRecover))
 # nodes that drive real devices: their presence makes the graph a hardware graph
 DEVICE_NODES = frozenset({"ur5", "linear_actuator", "pzt_injector", "biotac_reader", "mocap_bridge"})
+
+
+def command_topics() -> frozenset[str]:
+    """The topics whose readers move the rig or change the run."""
+    from incipient_slip.messages import ActuatorCommand, GripCommand, PztCommand, RobotRecover
+    return frozenset(t.TOPIC for t in (GripCommand, ActuatorCommand, PztCommand, RobotRecover))
 
 
 def _nodes(args) -> list[discovery.NodeInfo]:
@@ -82,6 +83,7 @@ def cmd_topic_info(args) -> int:
     readers = [i for i in nodes if args.topic in i.subscribes or ANY_TOPIC in i.subscribes]
     types = {i.publishes[args.topic] for i in writers} | {i.subscribes[args.topic] for i in readers
                                                          if args.topic in i.subscribes}
+    from incipient_slip.messages import DEFAULT_TOPICS, MESSAGE_TYPES
     type_name = next((t for t in sorted(types) if t in MESSAGE_TYPES),
                      DEFAULT_TOPICS[args.topic].__name__ if args.topic in DEFAULT_TOPICS else "?")
     row = {"topic": args.topic, "type": type_name, "writers": [i.name for i in writers],
@@ -95,9 +97,12 @@ def cmd_topic_info(args) -> int:
     return 0
 
 
-def message_from_yaml(topic: str, text: str, type_name: str | None = None) -> Message:
+def message_from_yaml(topic: str, text: str, type_name: str | None = None):
     """The message `text` (a YAML mapping of field values) describes on `topic`; UsageError
     naming the field and what would be right when the contract refuses it."""
+    import yaml
+
+    from incipient_slip.messages import DEFAULT_TOPICS, MESSAGE_TYPES, MessageError
     msg_type = MESSAGE_TYPES.get(type_name) if type_name else DEFAULT_TOPICS.get(topic)
     if msg_type is None:
         raise UsageError(f"{topic}: no message type known for it (not a default topic and no "
@@ -119,22 +124,24 @@ def message_from_yaml(topic: str, text: str, type_name: str | None = None) -> Me
         raise UsageError(f"{topic} ({msg_type.__name__}): {exc}") from None
 
 
-class _OnePublisher(Node):
-    """Publishes given messages on one topic (`slip topic pub`)."""
-
-    def __init__(self, msg_type: type[Message], topic: str, **kwargs):
-        super().__init__("slip_topic_pub", heartbeat_s=0, **kwargs)
-        self.pub = self.create_publisher(msg_type, topic)   # OUTPUTS undeclared: any topic
-
-
 def cmd_topic_pub(args) -> int:
     """Publishes one message (or --times N at --rate) on a topic of the running graph."""
+    from incipient_slip.graph.runtime import Node
+    from incipient_slip.messages import to_plain
+
+    class _OnePublisher(Node):
+        """Publishes given messages on one topic (`slip topic pub`)."""
+
+        def __init__(self, msg_type, topic: str, **kwargs):
+            super().__init__("slip_topic_pub", heartbeat_s=0, **kwargs)
+            self.pub = self.create_publisher(msg_type, topic)   # OUTPUTS undeclared: any topic
+
     nodes = _nodes(args)
     announced = {i.publishes.get(args.topic) or i.subscribes.get(args.topic) for i in nodes} - {None, "raw"}
     msg = message_from_yaml(args.topic, args.message, next(iter(sorted(announced)), None))
     devices = sorted({i.name for i in nodes} & DEVICE_NODES)
     if not args.force:
-        if args.topic in COMMAND_TOPICS:
+        if args.topic in command_topics():
             raise UsageError(f"{args.topic} is a command topic (its readers move the rig or change "
                              f"the run); pass --force if you mean it")
         if devices:
@@ -166,8 +173,9 @@ def register_topic(tsub, graph, guard) -> None:
         "pub", parents=[graph], help="publish a message given as YAML (validated by the contract)",
         description="Publishes one message on TOPIC from a YAML mapping of its fields (the rest "
         "keep their defaults; stamp and seq are set on sending), once every live reader has "
-        "subscribed. Command topics (" + ", ".join(sorted(COMMAND_TOPICS)) + ") and any topic "
-        "of a graph with real device nodes are refused without --force.")
+        "subscribed. Command topics (grip, actuator and PZT commands, robot recovery: their "
+        "readers move the rig or change the run) and any topic of a graph with real device "
+        "nodes are refused without --force.")
     p.add_argument("topic", help="e.g. /sim/truth")
     p.add_argument("message", nargs="?", default="", help="YAML, e.g. '{stick_ratio: 0.3, valid: true}'")
     p.add_argument("--times", type=int, default=1, metavar="N", help="publish N times (default 1)")

@@ -51,7 +51,8 @@ __all__ = ["Node", "Publisher", "RawPublisher", "Subscription", "RawSubscription
            "run_node", "POLL_S", "LINGER_MS", "ANY_TOPIC", "READERS_ENV", "WRITERS_ENV", "HELLO"]
 
 POLL_S = 0.1              # longest a loop blocks before it looks at the stop flag
-DRAIN_MAX = 10_000        # messages handled before due timers run (see _handle_received)
+DRAIN_MAX = 256           # queued messages one spin_once handles after the one it waited for
+TIMER_DRAIN_MAX = 10_000  # queued messages handled before due timers run (see _read_queued)
 LINGER_MS = 500           # longest close() waits to flush queued messages
 HWM = 100_000             # per-peer queue, messages; P_AC at 100 frames/s is tiny beside it
 HEARTBEAT_S = 1.0
@@ -59,15 +60,14 @@ DISCONNECT_GRACE_S = 2.0  # how long a withdrawn publisher stays connected so it
 _LOG_EVERY_S = 1.0        # rate limit of repeated warnings (malformed frames, callback errors)
 READY_TIMEOUT_S = 10.0    # default wait for the named readers before a source starts anyway
 
-# A node's INPUTS/OUTPUTS key for "every topic": the recorder reads all, replay writes what its
-# file holds. The launcher counts such a node as a reader (writer) of every topic of the launch.
-ANY_TOPIC = "*"
+# A node's INPUTS/OUTPUTS key for "every topic" (discovery.ANY_TOPIC, as its announcement says it)
+ANY_TOPIC = discovery.ANY_TOPIC
 # Set by the launcher for each node: JSON {output topic after remaps: [reader node names]}, the
 # readers in this launch that `wait_for_readers` waits for. Unset (a node started by hand): none.
 READERS_ENV = "SLIP_READERS"
 # Set by the launcher for each node: JSON {input topic after remaps: [writer node names]}. A node
 # accepts those topics only from those nodes: it does not connect to a node that announces one of
-# them without being its writer (a forged command or state; counted in `refused`, one warning
+# them without being its writer (a forged command or state; counted in `refused_writers`, one warning
 # each). Unset (a node started by hand, a recorder): every publisher is accepted.
 WRITERS_ENV = "SLIP_WRITERS"
 # Each node, once its subscriptions are made, also subscribes HELLO + its name: a subscription no
@@ -86,7 +86,8 @@ class Publisher:
         self.node, self.type, self.topic = node, msg_type, topic
         self.frame = M.topic_frame(topic)
         self.seq = 0
-        self._send = node._xpub.send_multipart
+        self._send_part = node._xpub.send      # two sends: send_multipart's checks cost more
+        self._encode = M.body_encoder(msg_type) if msg_type is not M.Message else None
         self.latched = msg_type.LATCHED
         self.last: list[bytes] | None = None    # latched: the frames re-sent to a late subscriber
 
@@ -100,11 +101,16 @@ class Publisher:
         else:
             seq = self.seq
             self.seq = seq + 1
-        frames = [self.frame, M.encode(msg, stamp_ns=msg.stamp_ns or time.time_ns(), seq=seq)]
+        body = self._encode(msg, msg.stamp_ns or time.time_ns(), seq)
         if self.latched:
-            self.last = frames
-        self._send(frames)
+            self.last = [self.frame, body]
+        self._send_part(self.frame, zmq.SNDMORE)
+        self._send_part(body)
         return seq
+
+    def _send(self, frames: list[bytes]) -> None:
+        self._send_part(frames[0], zmq.SNDMORE)
+        self._send_part(frames[1])
 
     def subscriber_count(self) -> int:
         """How many subscriptions (across nodes) currently match this topic."""
@@ -149,9 +155,10 @@ class Subscription:
         self.on_gap = on_gap
         self.received = self.gaps = self.missed = self.dropped = self.errors = 0
         self.last_seq: int | None = None
+        self._by_source = msg_type is M.Heartbeat
         self._last_by_source: dict[str, int] = {}
 
-    def _deliver(self, body: bytes, recv_ns: int) -> None:
+    def _deliver(self, body: bytes) -> None:
         node = self.node
         try:
             msg = M.decode(body, self.type, self.topic)
@@ -163,29 +170,38 @@ class Subscription:
             return
         self.received += 1
         seq = msg.seq
-        if self.type is M.Heartbeat:
+        if self._by_source:
             last = self._last_by_source.get(msg.node)
             self._last_by_source[msg.node] = seq
         else:
             last = self.last_seq
         self.last_seq = seq
         if last is not None and seq > last + 1:
-            self.gaps += 1
-            self.missed += seq - last - 1
-            node.seq_gaps += 1
-            node.warn(throttle_s=_LOG_EVERY_S, key=("gap", self.topic),
-                      text=f"seq gap on {self.topic}: {last} -> {seq} ({seq - last - 1} lost)")
-            if self.on_gap is not None:
-                self._call(self.on_gap, last, seq)
-        self._call(self.callback, msg)
+            self._gap(last, seq)
+        try:      # _call inlined: this is the hot path
+            self.callback(msg)
+        except Exception:  # a bad message must never kill the node: log, count, go on
+            self._failed()
+
+    def _gap(self, last: int, seq: int) -> None:
+        self.gaps += 1
+        self.missed += seq - last - 1
+        self.node.seq_gaps += 1
+        self.node.warn(throttle_s=_LOG_EVERY_S, key=("gap", self.topic),
+                       text=f"seq gap on {self.topic}: {last} -> {seq} ({seq - last - 1} lost)")
+        if self.on_gap is not None:
+            self._call(self.on_gap, last, seq)
 
     def _call(self, fn, *args) -> None:
         try:
             fn(*args)
         except Exception:  # a bad message must never kill the node: log, count, go on
-            self.errors += 1
-            self.node.warn(throttle_s=_LOG_EVERY_S, key=("cb", self.topic),
-                           text=f"callback for {self.topic} raised:\n{traceback.format_exc()}")
+            self._failed()
+
+    def _failed(self) -> None:
+        self.errors += 1
+        self.node.warn(throttle_s=_LOG_EVERY_S, key=("cb", self.topic),
+                       text=f"callback for {self.topic} raised:\n{traceback.format_exc()}")
 
 
 class RawSubscription(Subscription):
@@ -265,7 +281,7 @@ class Node:
         self._said_hello = False
         self._readers = _table_from_env(READERS_ENV, self.name) if readers is None else dict(readers)
         self._writers = _table_from_env(WRITERS_ENV, self.name) if writers is None else dict(writers)
-        self.refused: dict[tuple[str, int], str] = {}     # (name, pid) of a refused publisher -> why
+        self.refused_writers: dict[tuple[str, int], str] = {}     # (name, pid) of a refused publisher -> why
         self._log_prefix = "" if os.environ.get("SLIP_LAUNCHED") else f"[{self.name}] "
 
         self._dir = discovery.graph_dir() if graph_dir is None else Path(graph_dir)
@@ -295,7 +311,6 @@ class Node:
         self._sub.setsockopt(zmq.LINGER, 0)
         if self._keys:
             security.secure_client(self._sub, self._keys)
-        self._sub_recv = self._sub.recv_multipart
         self._rcvtimeo = -1
         self._info = discovery.NodeInfo(self.name, os.getpid(), endpoint, started_ns=time.time_ns(),
                                         pidns=discovery.namespace("pid"), netns=discovery.namespace("net"))
@@ -495,9 +510,12 @@ class Node:
         return self.exit_code
 
     def spin_once(self, timeout_s: float = POLL_S) -> None:
-        """Waits at most `timeout_s` for one message, handles it and any due timers."""
-        # Hot path: one blocking recv with a receive timeout (no poller, no EAGAIN per message)
-        # is what a raw pyzmq loop does; XPUB subscription news is read at discovery ticks.
+        """Waits at most `timeout_s` for a message, handles it, then the messages already queued
+        (at most DRAIN_MAX, none once a timer or the discovery scan is due), then due timers,
+        after every message already queued (`_read_queued`)."""
+        # Hot path: one blocking recv with a receive timeout (no poller), as a raw pyzmq loop
+        # does, then non-blocking reads while messages are queued (one EAGAIN per burst, not per
+        # message); XPUB subscription news is read at discovery ticks.
         if not self._said_hello:
             self._say_hello()
         now = time.monotonic()
@@ -505,37 +523,38 @@ class Node:
             self._discover()
             self._drain_xpub()
             now = time.monotonic()
-        wait = min(timeout_s, self._next_scan - now)
         timers = self._timers
-        if timers:
-            wait = min(wait, timers[0].due - now)
-        ms = max(0, int(wait * 1000.0 + 0.999))
+        due = min(self._next_scan, timers[0].due) if timers else self._next_scan
+        ms = max(0, int(min(timeout_s, due - now) * 1000.0 + 0.999))
         if ms != self._rcvtimeo:
             self._sub.setsockopt(zmq.RCVTIMEO, ms)
             self._rcvtimeo = ms
+        recv, read = self._sub.recv, self._read
         try:
-            frames = self._sub_recv()
+            read(recv(copy=False))
+            for _ in range(DRAIN_MAX):
+                if self._stop or time.monotonic() >= due:
+                    break
+                read(recv(zmq.NOBLOCK, copy=False))
         except zmq.Again:
-            frames = None
-        if frames is not None:
-            self._handle(frames)
+            pass
         if timers and timers[0].due <= time.monotonic():
-            self._handle_received()
+            self._read_queued()
             self._run_timers()
 
-    def _handle_received(self) -> None:
-        """Handles the messages already received (at most DRAIN_MAX) before due timers run: a
-        timer that judges silence ("no heartbeat for 1 s", "no estimate 0.4 s after the tick")
+    def _read_queued(self) -> None:
+        """Handles the messages already queued (at most TIMER_DRAIN_MAX) before due timers run:
+        a timer that judges silence ("no heartbeat for 3 s", "no estimate 0.4 s after the tick")
         must see what arrived while this process was not run, or a loaded host reads as a
         silent graph."""
-        for _ in range(DRAIN_MAX):
-            if self._stop:
-                return
-            try:
-                frames = self._sub_recv(zmq.NOBLOCK)
-            except zmq.Again:
-                return
-            self._handle(frames)
+        recv, read = self._sub.recv, self._read
+        try:
+            for _ in range(TIMER_DRAIN_MAX):
+                if self._stop:
+                    return
+                read(recv(zmq.NOBLOCK, copy=False))
+        except zmq.Again:
+            pass
 
     def close(self, run_hooks: bool = True) -> None:
         """Runs the on_shutdown callbacks (unless `run_hooks` is False: a node whose constructor
@@ -619,11 +638,11 @@ class Node:
         for topic in info.publishes:
             if topic in writers and info.name not in writers[topic]:
                 key = (info.name, info.pid)
-                if key not in self.refused:
-                    self.refused[key] = (f"publisher {info.name} (pid {info.pid}) refused: it "
+                if key not in self.refused_writers:
+                    self.refused_writers[key] = (f"publisher {info.name} (pid {info.pid}) refused: it "
                                          f"announces {topic}, whose writer in this launch is "
                                          f"{' or '.join(writers[topic])}")
-                    self.warn(f"{self.refused[key]} ({len(self.refused)} refused)")
+                    self.warn(f"{self.refused_writers[key]} ({len(self.refused_writers)} refused)")
                 self._refused_endpoints.add(info.endpoint)
                 return False
         if any(info.name in names for names in writers.values()):
@@ -631,23 +650,36 @@ class Node:
         reads = self._info.subscribes
         return ANY_TOPIC in reads or any(t in reads for t in info.publishes)
 
-    def _handle(self, frames: list) -> None:
-        recv_ns = time.time_ns()
-        if len(frames) == 2 and frames[0][-1:] == b"\0":
-            raw_topic, body = frames
-            try:
-                topic = raw_topic[:-1].decode()
-            except UnicodeDecodeError:
-                topic = None
+    def _read(self, first: zmq.Frame) -> None:
+        """Reads the rest of the message whose first frame is `first` and handles it; a message
+        of other than two frames, or whose topic is not NUL-terminated UTF-8, is a counted drop.
+        Frames (copy=False) because Frame.more is a C read, and get(RCVMORE) a Python enum call
+        that cost more than the recv itself."""
+        if first.more:
+            second = self._sub.recv(copy=False)
+            raw = first.bytes
+            if not second.more and raw[-1:] == b"\0":
+                try:
+                    topic = raw[:-1].decode()
+                except UnicodeDecodeError:
+                    pass
+                else:
+                    self._handle(topic, second.bytes)
+                    return
+            frames = [raw, second.bytes]
+            while second.more:
+                second = self._sub.recv(copy=False)
+                frames.append(second.bytes)
         else:
-            topic = None
-        if topic is None:
-            self.malformed += 1
-            try:
-                M.split_frames(frames)
-            except M.MessageError as exc:
-                self.warn(throttle_s=_LOG_EVERY_S, key="frames", text=f"dropped malformed frames: {exc}")
-            return
+            frames = [first.bytes]
+        self.malformed += 1
+        try:
+            M.split_frames(frames)
+        except M.MessageError as exc:
+            self.warn(throttle_s=_LOG_EVERY_S, key="frames", text=f"dropped malformed frames: {exc}")
+
+    def _handle(self, topic: str, body: bytes) -> None:
+        recv_ns = time.time_ns() if self._raw_subs else 0
         # A body equal to the last one on its topic is a latched state re-sent for a subscriber
         # that joined after us (seq and stamp included, so never a new message of one publisher)
         if topic in self._latched_topics:
@@ -656,7 +688,7 @@ class Node:
                 return
             self._last_body[topic] = body
         for sub in self._subs.get(topic, ()):
-            sub._deliver(body, recv_ns)
+            sub._deliver(body)
         for raw in self._raw_subs:
             if raw.topic == "" or raw.topic == topic:
                 raw._deliver_raw(topic, body, recv_ns)

@@ -22,7 +22,7 @@ import threading
 from pathlib import Path
 
 import zmq
-from zmq.auth.thread import ThreadAuthenticator
+import zmq.auth      # certificates; zmq.auth.thread (asyncio) is imported by the ZAP handler
 
 from incipient_slip.graph.discovery import GraphNameError
 
@@ -94,6 +94,8 @@ class _Handler:
     def __init__(self, ctx: zmq.Context):
         self.allowed: dict[str, bytes] = {}      # ZAP domain -> the graph's public key (Z85)
         self.refused: dict[str, int] = {}
+        # imported here: zmq.auth.thread pulls in asyncio (~0.1 s), which only CURVE needs
+        from zmq.auth.thread import ThreadAuthenticator
         self.auth = ThreadAuthenticator(ctx, log=_QuietLog())
         self.auth.start()
 

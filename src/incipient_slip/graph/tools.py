@@ -9,167 +9,23 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
-import time
-from collections import deque
 from pathlib import Path
 
 from incipient_slip.errors import UsageError
-from incipient_slip.messages import MessageError, decode_any, to_plain
 from incipient_slip.graph import discovery, introspect
-from incipient_slip.graph.bag import FLUSH_S, BagError, bag_info
-from incipient_slip.graph.params import format_value
-from incipient_slip.graph.runtime import Node, run_node
 
-__all__ = ["register", "TopicList", "TopicEcho", "TopicHz"]
+# The runtime, the messages and the bag module are imported by the commands that use them:
+# registering the commands (`slip topic --help`) must not load numpy or zmq.
 
-
-# --- the tool nodes --------------------------------------------------------------------------
-
-class TopicList(Node):
-    """Listens to every topic for `duration_s` and prints topics, types, publishers and rates."""
-
-    PARAMS = {"duration_s": 1.0, "json": False}
-
-    def __init__(self, **kwargs):
-        super().__init__("slip_topic_list", **kwargs)
-        self.counts: dict[str, int] = {}
-        self.types: dict[str, str] = {}
-        self.create_raw_subscription(self.on_message)
-        self.create_timer(self.param("duration_s"), self.report)
-        self.t0 = time.monotonic()
-
-    def on_message(self, topic: str, body: bytes, recv_ns: int) -> None:
-        self.counts[topic] = self.counts.get(topic, 0) + 1
-        if topic not in self.types:
-            try:
-                self.types[topic] = type(decode_any(body, topic)).__name__
-            except MessageError:
-                self.types[topic] = "(malformed)"
-
-    def report(self) -> None:
-        elapsed = time.monotonic() - self.t0
-        rows: dict[str, dict] = {}
-        for info in discovery.scan(self._dir, clean=False):
-            if info.pid == os.getpid():
-                continue
-            for topic, type_name in info.publishes.items():
-                row = rows.setdefault(topic, {"topic": topic, "type": type_name, "publishers": []})
-                row["publishers"].append(info.name)
-                if row["type"] == "raw":
-                    row["type"] = self.types.get(topic, "raw")
-        for topic, n in self.counts.items():   # heard, though its publisher already left
-            rows.setdefault(topic, {"topic": topic, "type": self.types[topic], "publishers": []})
-        for row in rows.values():
-            row["rate_hz"] = self.counts.get(row["topic"], 0) / elapsed
-        table = sorted(rows.values(), key=lambda r: r["topic"])
-        if self.param("json"):
-            print(json.dumps(table))
-        elif not table:
-            print(f"no topics in graph {self._dir}")
-        else:
-            width = max(len(r["topic"]) for r in table)
-            print(f"{'topic':<{width}}  {'type':<14} {'rate_hz':>9}  publishers")
-            for r in table:
-                print(f"{r['topic']:<{width}}  {r['type']:<14} {r['rate_hz']:>9.1f}  "
-                      f"{', '.join(sorted(r['publishers'])) or '-'}")
-        self.shutdown()
-
-
-def _json_safe(value):
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, list):
-        return [_json_safe(v) for v in value]
-    return value
-
-
-def _yaml_value(value) -> str:
-    if isinstance(value, float) and not math.isfinite(value):
-        return ".nan" if math.isnan(value) else (".inf" if value > 0 else "-.inf")
-    return json.dumps(value)
-
-
-NOTHING_YET_S = 3.0       # slip topic echo says it is still waiting after this long without a message
-
-
-class TopicEcho(Node):
-    """Prints each message on `topic` (YAML documents, or JSON lines), `count` times (0: forever)."""
-
-    PARAMS = {"topic": "", "count": 0, "json": False}
-
-    def __init__(self, **kwargs):
-        super().__init__("slip_topic_echo", **kwargs)
-        self.printed = 0
-        self.create_raw_subscription(self.on_message, self.param("topic"))
-        self.create_timer(NOTHING_YET_S, self.say_if_silent)
-
-    def say_if_silent(self) -> None:
-        """One line on stderr while nothing arrived, so an empty graph is not a silent hang."""
-        if not self.printed:
-            self.warn(f"no message on {self.param('topic')} yet in graph {self._dir} "
-                      f"(is a launch running there?); waiting", throttle_s=30.0)
-
-    def on_message(self, topic: str, body: bytes, recv_ns: int) -> None:
-        try:
-            msg = decode_any(body, topic)
-        except MessageError as exc:
-            self.warn(f"malformed message dropped: {exc}")
-            return
-        plain = to_plain(msg)
-        if self.param("json"):
-            print(json.dumps({"topic": topic, **{k: _json_safe(v) for k, v in plain.items()}}),
-                  flush=True)
-        else:   # YAML documents, one field a line, arrays inline (JSON is YAML)
-            lines = [f"--- # {topic}"] + [f"{k}: {_yaml_value(v)}" for k, v in plain.items()]
-            print("\n".join(lines), flush=True)
-        self.printed += 1
-        if self.param("count") and self.printed >= self.param("count"):
-            self.shutdown()
-
-
-class TopicHz(Node):
-    """Prints the rate of `topic` every second over the last `window` messages."""
-
-    PARAMS = {"topic": "", "window": 100, "duration_s": 0.0}
-
-    def __init__(self, **kwargs):
-        super().__init__("slip_topic_hz", **kwargs)
-        self.recv = deque(maxlen=max(2, self.param("window")))
-        self.stamps = deque(maxlen=max(2, self.param("window")))
-        self.create_raw_subscription(self.on_message, self.param("topic"))
-        self.create_timer(1.0, self.report)
-        if self.param("duration_s") > 0:
-            self.create_timer(self.param("duration_s"), self.shutdown)
-
-    def on_message(self, topic: str, body: bytes, recv_ns: int) -> None:
-        try:
-            msg = decode_any(body, topic)
-        except MessageError:
-            return
-        self.recv.append(recv_ns)
-        self.stamps.append(msg.stamp_ns)
-
-    def report(self) -> None:
-        if len(self.recv) < 2:
-            print(f"{self.param('topic')}: no messages yet", flush=True)
-            return
-        import numpy as np
-        dt = np.diff(np.array(self.recv, dtype=np.int64)) / 1e9
-        dstamp = np.diff(np.array(self.stamps, dtype=np.int64)) / 1e9
-        dstamp = dstamp[dstamp > 0]          # a replay that loops restarts its stamps
-        rate = 1.0 / dt.mean() if dt.mean() > 0 else float("inf")
-        stamp_rate = 1.0 / dstamp.mean() if dstamp.size else float("nan")
-        print(f"{self.param('topic')}: rate {rate:.2f} Hz (by stamps {stamp_rate:.2f} Hz)  "
-              f"min {dt.min():.4f} s  max {dt.max():.4f} s  std {dt.std():.5f} s  "
-              f"window {len(self.recv)}", flush=True)
+__all__ = ["register", "register_topic", "register_bag"]
 
 
 # --- command handlers ------------------------------------------------------------------------
 
 def _node_argv(**params) -> list[str]:
+    from incipient_slip.graph.params import format_value
     return [f"{k}:={format_value(v)}" for k, v in params.items()]
 
 
@@ -192,18 +48,24 @@ def _positive(name: str, value, allow_zero: bool = False):
 
 
 def cmd_topic_list(args) -> int:
+    from incipient_slip.graph.runtime import run_node
+    from incipient_slip.graph.topic_nodes import TopicList
     _positive("--duration", args.duration)
     return run_node(TopicList, _node_argv(duration_s=args.duration, json=args.json),
                     heartbeat_s=0, **_graph_kwargs(args))
 
 
 def cmd_topic_echo(args) -> int:
+    from incipient_slip.graph.runtime import run_node
+    from incipient_slip.graph.topic_nodes import TopicEcho
     _positive("--count", args.count, allow_zero=True)
     return run_node(TopicEcho, _node_argv(topic=_topic(args.topic), count=args.count, json=args.json),
                     heartbeat_s=0, **_graph_kwargs(args))
 
 
 def cmd_topic_hz(args) -> int:
+    from incipient_slip.graph.runtime import run_node
+    from incipient_slip.graph.topic_nodes import TopicHz
     _positive("--window", args.window)
     _positive("--duration", args.duration, allow_zero=True)
     return run_node(TopicHz, _node_argv(topic=_topic(args.topic), window=args.window,
@@ -213,6 +75,7 @@ def cmd_topic_hz(args) -> int:
 
 def cmd_bag_record(args) -> int:
     from incipient_slip.graph.recorder import Recorder
+    from incipient_slip.graph.runtime import run_node
 
     out = Path(args.out)
     if not out.parent.is_dir():
@@ -227,7 +90,9 @@ def cmd_bag_record(args) -> int:
 
 
 def cmd_bag_play(args) -> int:
+    from incipient_slip.graph.bag import bag_info
     from incipient_slip.graph.replay import Replay, resolve_bag_path
+    from incipient_slip.graph.runtime import run_node
 
     path = resolve_bag_path(args.bag)
     info = bag_info(path)   # BagError here is a clean exit 2, before any socket exists
@@ -244,6 +109,7 @@ def cmd_bag_play(args) -> int:
 
 
 def cmd_bag_info(args) -> int:
+    from incipient_slip.graph.bag import bag_info
     with _bytes_bar(args.bag, "reading") as bar:
         info = bag_info(args.bag, damaged_ok=True, progress=bar.update)
     print(json.dumps(info.to_plain(), indent=1) if args.json else info.format())
@@ -289,6 +155,7 @@ def cmd_bag_recover(args) -> int:
 def cmd_bag_export(args) -> int:
     from tqdm import tqdm
 
+    from incipient_slip.graph.bag import bag_info
     from incipient_slip.graph.bag_export import export_foxglove
 
     out = _output(args.out, args.bag, args.force)
@@ -305,19 +172,32 @@ def _guard(handler):
     def run(args) -> int:
         try:
             return handler(args)
-        except (BagError, ValueError, OSError) as exc:
-            raise UsageError(str(exc)) from exc
+        except Exception as exc:
+            from incipient_slip.graph.bag import BagError    # loaded already if it raised one
+            if isinstance(exc, (BagError, ValueError, OSError)):
+                raise UsageError(str(exc)) from exc
+            raise
     return run
 
 
 # --- registration ----------------------------------------------------------------------------
 
 def register(subparsers) -> None:
-    """Adds `slip topic ...` and `slip bag ...` to the `slip` command."""
+    """Adds `slip topic ...`, `slip node ...` and `slip bag ...` to the `slip` command."""
+    register_topic(subparsers)
+    register_bag(subparsers)
+
+
+def _graph_option() -> argparse.ArgumentParser:
     graph = argparse.ArgumentParser(add_help=False)
     graph.add_argument("--graph", metavar="NAME", help="graph name (default $SLIP_GRAPH or "
                        "'default'; $SLIP_GRAPH_DIR overrides the directory)")
+    return graph
 
+
+def register_topic(subparsers) -> None:
+    """Adds `slip topic ...` and `slip node ...` (light: nothing of numpy or zmq is imported)."""
+    graph = _graph_option()
     topic = subparsers.add_parser("topic", help="look at the topics of a running graph")
     tsub = topic.add_subparsers(dest="tool", metavar="TOOL", required=True)
     p = tsub.add_parser("list", parents=[graph], help="topics being published now, types and rates")
@@ -339,6 +219,12 @@ def register(subparsers) -> None:
     introspect.register_topic(tsub, graph, _guard)
     introspect.register_node(subparsers, graph, _guard)
 
+
+def register_bag(subparsers) -> None:
+    """Adds `slip bag ...`."""
+    from incipient_slip.graph.bag import FLUSH_S
+
+    graph = _graph_option()
     bag = subparsers.add_parser(
         "bag", help="record, play, inspect, recover and export MCAP recordings",
         description="Recordings are MCAP files with one msgpack channel per topic, each with a "
@@ -419,7 +305,8 @@ def register(subparsers) -> None:
 def main(argv: list[str] | None = None) -> int:
     """`python -m incipient_slip.graph.tools topic|bag ...`: these commands without the rest of `slip`."""
     from incipient_slip.cli import main as slip_main
-    return slip_main(argv, modules=("incipient_slip.graph.tools",))
+    return slip_main(argv, modules=("incipient_slip.graph.tools:register_topic",
+                                    "incipient_slip.graph.tools:register_bag"))
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ input raises the one :class:`MessageError`). docs/messages.md is generated from 
 declarations. Nothing outside this package builds message dicts by hand.
 """
 from incipient_slip.messages.codec import (
-    decode, decode_any, encode, split_frames, to_plain, topic_frame,
+    body_encoder, decode, decode_any, encode, split_frames, to_plain, topic_frame,
 )
 from incipient_slip.messages.fields import MAX_BODY_BYTES, MAX_STRING, Message, MessageError
 from incipient_slip.messages.types import (
@@ -18,7 +18,7 @@ from incipient_slip.messages.types import (
 )
 
 __all__ = [
-    "MessageError", "Message", "encode", "decode", "decode_any", "topic_frame", "split_frames",
+    "MessageError", "Message", "encode", "body_encoder", "decode", "decode_any", "topic_frame", "split_frames",
     "to_plain", "MESSAGE_TYPES", "DEFAULT_TOPICS", "MAX_BODY_BYTES", "MAX_STRING",
     "BiotacPac", "BiotacSlow", "PztCommand", "PztState", "ObjectPose", "ActuatorCommand",
     "ActuatorState", "GripCommand", "RobotState", "RobotRecover", "SlipEstimate", "RunEvent",

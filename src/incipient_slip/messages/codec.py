@@ -7,24 +7,28 @@ fields. Arrays travel as ``{"dtype": "<i2", "shape": [22], "data": <raw little-e
 never pickled.
 
 Decoding turns every malformed input into :class:`MessageError` (topic, field, reason) and
-nothing else: a subscriber may count and drop it.
+nothing else: a subscriber may count and drop it. Two paths, both derived from the field specs:
+the wire path (msgspec Structs decode and validate in one pass) takes every well-formed body;
+whatever it refuses goes to the naming path (msgpack, then each field checked), which decides
+and names the first wrong field. The wire path never accepts what the naming path refuses.
 """
 from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import Annotated, Any, Literal, Union
 
 import msgpack
+import msgspec
 import numpy as np
 
 from incipient_slip.messages.fields import (
-    MAX_BODY_BYTES, MAX_MAP, MAX_STRING, Message, MessageError, Scalar, check_scalar,
-    check_wire_array, compile_checker, field_specs, scalar_check_lines,
+    MAX_BODY_BYTES, MAX_MAP, MAX_STRING, Array, Message, MessageError, Scalar, check_scalar,
+    check_wire_array, compile_checker, field_specs,
 )
 from incipient_slip.messages.types import MESSAGE_TYPES
 
-__all__ = ["encode", "decode", "decode_any", "topic_frame", "split_frames", "to_plain"]
+__all__ = ["encode", "body_encoder", "decode", "decode_any", "decode_named", "topic_frame", "split_frames", "to_plain"]
 
 _UINT64_END = 1 << 64
 
@@ -35,20 +39,22 @@ def encode(msg: Message, *, stamp_ns: int | None = None, seq: int | None = None)
     `stamp_ns` / `seq`, when given, replace the message's own (publishers set them this way
     without building a new, re-validated message on the hot path).
     """
-    body = {"type": type(msg).__name__, "v": msg.SCHEMA_VERSION}
-    for name, spec in field_specs(type(msg)):
-        value = getattr(msg, name)
-        body[name] = (value if type(spec) is Scalar else
-                      {"dtype": spec.dtype, "shape": list(value.shape), "data": value.tobytes()})
-    if stamp_ns is not None:
-        if not (type(stamp_ns) is int and 0 <= stamp_ns < _UINT64_END):
-            raise MessageError(msg.TOPIC, "stamp_ns", f"{stamp_ns!r} is not a uint64")
-        body["stamp_ns"] = stamp_ns
-    if seq is not None:
-        if not (type(seq) is int and 0 <= seq < _UINT64_END):
-            raise MessageError(msg.TOPIC, "seq", f"{seq!r} is not a uint64")
-        body["seq"] = seq
-    return msgpack.packb(body, use_bin_type=True)
+    if stamp_ns is not None and not (type(stamp_ns) is int and 0 <= stamp_ns < _UINT64_END):
+        raise MessageError(msg.TOPIC, "stamp_ns", f"{stamp_ns!r} is not a uint64")
+    if seq is not None and not (type(seq) is int and 0 <= seq < _UINT64_END):
+        raise MessageError(msg.TOPIC, "seq", f"{seq!r} is not a uint64")
+    return body_encoder(type(msg))(msg, msg.stamp_ns if stamp_ns is None else stamp_ns,
+                                   msg.seq if seq is None else seq)
+
+
+def body_encoder(cls: type[Message]) -> Any:
+    """The body encoder of `cls`, (msg, stamp_ns, seq) -> bytes, for callers whose stamp_ns and
+    seq are uint64 already (a publisher's); generated once per class from its field specs."""
+    try:
+        return _ENCODERS[cls]
+    except KeyError:
+        enc = _ENCODERS[cls] = _compile_encoder(cls)
+        return enc
 
 
 def topic_frame(topic: str) -> bytes:
@@ -71,24 +77,22 @@ def split_frames(frames: list[bytes]) -> tuple[str, bytes]:
 
 def decode(body: bytes, expected: type[Message], topic: str | None = None) -> Message:
     """The message of type `expected` in `body`; MessageError if anything is off."""
-    topic = topic or expected.TOPIC
-    obj = _unpack(body, topic)
-    if obj.get("type") == expected.__name__:
-        msg = _fast(expected)(obj)
-        if msg is not None:
+    try:
+        msg = _wire(body)
+        if type(msg) is expected:
             return msg
-    cls = _header(obj, topic)
-    if cls is not expected:
-        raise MessageError(topic, "type", f"got {cls.__name__}, expected {expected.__name__}")
-    return _validate_fields(cls, obj, topic)
+    except Exception:  # refused or unusual: the naming path decides, and says what is wrong
+        pass
+    return decode_named(body, expected, topic)
 
 
 def decode_any(body: bytes, topic: str = "?") -> Message:
     """The message in `body`, of whatever type its header names (for bag and echo tools)."""
-    obj = _unpack(body, topic)
-    cls = _header(obj, topic)
-    msg = _fast(cls)(obj)
-    return msg if msg is not None else _validate_fields(cls, obj, topic)
+    try:
+        return _wire(body)
+    except Exception:  # refused or unusual: the naming path decides, and says what is wrong
+        obj = _unpack(body, topic)
+        return _validate_fields(_header(obj, topic), obj, topic)
 
 
 def to_plain(msg: Message) -> dict:
@@ -101,6 +105,17 @@ def to_plain(msg: Message) -> dict:
 
 
 # --- the general (naming) path ---------------------------------------------------------------
+
+def decode_named(body: bytes, expected: type[Message], topic: str | None = None) -> Message:
+    """`decode` by the naming path only (msgpack, then every field checked and the first wrong one
+    named): what the wire path falls back to, and is tested and measured against."""
+    topic = topic or expected.TOPIC
+    obj = _unpack(body, topic)
+    cls = _header(obj, topic)
+    if cls is not expected:
+        raise MessageError(topic, "type", f"got {cls.__name__}, expected {expected.__name__}")
+    return _validate_fields(cls, obj, topic)
+
 
 def _unpack(body: bytes, topic: str) -> dict:
     if not isinstance(body, (bytes, bytearray, memoryview)):
@@ -149,53 +164,108 @@ def _validate_fields(cls: type[Message], body: dict, topic: str) -> Message:
     return msg
 
 
-# --- the fast path: well-formed bodies -------------------------------------------------------
+# --- the wire path: msgspec decodes and validates well-formed bodies --------------------------
+#
+# A msgspec Struct per message type, generated from the same field specs (tagged by "type",
+# unknown fields forbidden; ints with their width's bounds, enums as Literals, array maps as
+# nested Structs with the exact dtype, shape and byte length), plus the checks msgspec has no
+# constraint for (finite floats and arrays, the UTF-8 byte limit of non-ASCII strings). It only
+# accepts what the naming path accepts, and builds the same message; anything it refuses goes
+# to the naming path, which refuses it with the field and the reason (or, for what msgspec is
+# stricter about, accepts it).
 
-_FAST: dict[type, Any] = {}
+_INT64 = (-(1 << 63), (1 << 63) - 1)      # msgspec's integer bounds must fit an int64
+_ENCODERS: dict[type, Any] = {}           # message type -> (msg, stamp_ns, seq) -> body
+def _scalar_type(spec: Scalar) -> Any:
+    if spec.choices is not None:
+        return Literal[spec.choices]
+    if spec.kind is bool:
+        return bool
+    if spec.kind is str:
+        return Annotated[str, msgspec.Meta(max_length=spec.max_bytes)]
+    bounds = {}
+    if spec.low is not None and (spec.kind is float or _INT64[0] <= spec.low <= _INT64[1]):
+        bounds["ge"] = spec.low
+    if spec.high is not None and (spec.kind is float or _INT64[0] <= spec.high <= _INT64[1]):
+        bounds["le"] = spec.high
+    return Annotated[spec.kind, msgspec.Meta(**bounds)] if bounds else spec.kind
 
 
-def _fast(cls) -> Any:
-    """The generated decoder of `cls` (message, or None for anything unusual)."""
-    try:
-        return _FAST[cls]
-    except KeyError:
-        fast = _FAST[cls] = _compile_decoder(cls)
-        return fast
+def _array_type(cls, name: str, spec: Array) -> Any:
+    nbytes = math.prod(spec.shape) * np.dtype(spec.dtype).itemsize
+    return msgspec.defstruct(
+        f"{cls.__name__}_{name}",
+        [("dtype", Literal[spec.dtype]),
+         ("shape", tuple[tuple(Literal[n] for n in spec.shape)]),
+         ("data", Annotated[bytes, msgspec.Meta(min_length=nbytes, max_length=nbytes)])],
+        forbid_unknown_fields=True, array_like=False)
 
 
-def _compile_decoder(cls) -> Any:
-    """Decodes a well-formed msgpack map (header included) to the message, or returns None;
-    generated once per class from its field specs because generic per-field checks dominated
-    the receive path. None sends the caller to the general path, which names what is wrong.
-    """
-    specs = field_specs(cls)
-    src = ["def fast(body):",
-           f"    if len(body) != {len(specs) + 2}: return None",
-           "    g = body.get",
-           "    v = g('v')",
-           f"    if type(v) is not int or v != {cls.SCHEMA_VERSION}: return None"]
-    env: dict[str, Any] = {"frombuffer": np.frombuffer, "new": object.__new__, "cls": cls}
-    names = []
-    for i, (name, spec) in enumerate(specs):
-        v = f"v{i}"
-        names.append(f"{name}={v}")
-        src.append(f"    {v} = g({name!r})")
-        if type(spec) is Scalar:
-            src += scalar_check_lines(v, spec, i, env)
-            continue
-        if any(n is None for n in spec.shape):
-            return lambda body: None     # free-length arrays: the general path only
-        shape = tuple(spec.shape)
-        nbytes = math.prod(shape) * np.dtype(spec.dtype).itemsize
-        shape_ok = " and ".join([f"type(s) is list and len(s) == {len(shape)}"]
-                                + [f"type(s[{j}]) is int and s[{j}] == {n}" for j, n in enumerate(shape)])
-        src += [f"    if type({v}) is not dict or len({v}) != 3: return None",
-                f"    d = {v}.get('data')",
-                f"    s = {v}.get('shape')",
-                f"    if type(d) is not bytes or len(d) != {nbytes} or {v}.get('dtype') != {spec.dtype!r}"
-                f" or not ({shape_ok}): return None",
-                f"    {v} = frombuffer(d, {spec.dtype!r}).reshape({shape!r})"]
-        if np.dtype(spec.dtype).kind == "f":
-            src.append(f"    if not allfinite({v}): return None")
-    src += ["    m = new(cls)", f"    m.__dict__.update({', '.join(names)})", "    return m"]
-    return compile_checker("fast", src, env)
+def _wire_struct(cls) -> Any:
+    """The msgspec Struct of `cls`'s body, or None if a field has no exact wire type."""
+    fields = [("v", Literal[cls.SCHEMA_VERSION])]
+    for name, spec in field_specs(cls):
+        if type(spec) is Array and any(n is None for n in spec.shape):
+            return None     # free-length arrays: the naming path only
+        fields.append((name, _scalar_type(spec) if type(spec) is Scalar else _array_type(cls, name, spec)))
+    return msgspec.defstruct(f"{cls.__name__}Wire", fields, tag_field="type", tag=cls.__name__,
+                             forbid_unknown_fields=True)
+
+
+def _wire(body) -> Message:
+    """The wire decoder, built on first use (not at import: `slip --help` need not pay for it)."""
+    global _wire
+    _wire = _compile_wire_decoder()
+    return _wire(body)
+
+
+def _compile_wire_decoder() -> Any:
+    """body -> message of the type its header names, raising on anything the wire types or
+    the extra checks refuse (the caller then asks the naming path). One tagged union of every
+    type: msgspec requires the tag of a union member, not of a lone tagged Struct."""
+    structs = {c: _wire_struct(c) for c in MESSAGE_TYPES.values()}
+    structs = {c: w for c, w in structs.items() if w is not None}
+    assert len(structs) > 1, "a union of one type would not require its tag"
+    env: dict[str, Any] = {"frombuffer": np.frombuffer, "new": object.__new__, "max_body": MAX_BODY_BYTES}
+    src = []
+    for k, (c, wire) in enumerate(structs.items()):
+        env[f"cls{k}"] = c
+        src += [f"def build{k}(w):", f"    m = new(cls{k})"]
+        names = []
+        for i, (name, spec) in enumerate(field_specs(c)):
+            names.append(f"{name}=v{i}")
+            src.append(f"    v{i} = w.{name}")
+            if type(spec) is Array:
+                reshape = "" if len(spec.shape) == 1 else f".reshape({tuple(spec.shape)!r})"
+                src.append(f"    v{i} = frombuffer(v{i}.data, {spec.dtype!r}){reshape}")
+                if np.dtype(spec.dtype).kind == "f":
+                    src.append(f"    if not allfinite(v{i}): raise ValueError")
+            elif spec.kind is float and spec.finite:
+                src.append(f"    if not isfinite(v{i}): raise ValueError")
+            elif spec.kind is str and spec.choices is None:
+                src.append(f"    if not v{i}.isascii() and len(v{i}.encode()) > {spec.max_bytes}: raise ValueError")
+        src += [f"    m.__dict__.update({', '.join(names)})", "    return m"]
+    union = list(structs.values())
+    env["decode_wire"] = msgspec.msgpack.Decoder(Union[tuple(union)]).decode
+    src += ["def wire(body):",
+            "    if len(body) > max_body: raise ValueError",
+            "    w = decode_wire(body)",
+            "    return builders[type(w)](w)"]
+    fn = compile_checker("wire", src, env)
+    env["builders"] = {w: env[f"build{k}"] for k, w in enumerate(union)}
+    return fn
+
+
+def _compile_encoder(cls) -> Any:
+    """(msg, stamp_ns, seq) -> the msgpack body of `cls` (header first, fields in declaration
+    order); generated from the field specs, as a generic loop over them dominated encoding."""
+    items = [f"'type': {cls.__name__!r}", f"'v': {cls.SCHEMA_VERSION}"]
+    for name, spec in field_specs(cls):
+        value = {"stamp_ns": "stamp_ns", "seq": "seq"}.get(name, f"m.{name}")
+        if type(spec) is Array:
+            # construction made a fixed shape exactly the declared one
+            shape = f"list(m.{name}.shape)" if None in spec.shape else repr(list(spec.shape))
+            value = f"{{'dtype': {spec.dtype!r}, 'shape': {shape}, 'data': m.{name}.tobytes()}}"
+        items.append(f"{name!r}: {value}")
+    src = ["def encode(m, stamp_ns, seq):", f"    return pack({{{', '.join(items)}}})"]
+    return compile_checker("encode", src, {"pack": msgspec.msgpack.Encoder().encode})

@@ -156,8 +156,12 @@ class ObjectPose(Message):
 @dataclass(frozen=True, eq=False)
 class ActuatorCommand(Message):
     TOPIC: ClassVar[str] = "/actuator/command"
-    DESCRIPTION: ClassVar[str] = "Move the linear actuator relative by move_mm (positive pulls)"
-    move_mm: float = real(0.0, unit="mm", low=-50.0, high=50.0)
+    SCHEMA_VERSION: ClassVar[int] = 2      # 2: absolute position_mm and period (was a relative move_mm)
+    DESCRIPTION: ClassVar[str] = ("Move the linear actuator to position_mm for the next period (identification; "
+                                  "positive pulls); the applying node clamps to its own limits")
+    position_mm: float = real(0.0, unit="mm", low=-50.0, high=50.0,
+                              note="absolute, from the actuator's zero-load origin (start_mm)")
+    period: int = integer("int64", -1, low=-1, high=STEP_LIMIT, note=_NO_PERIOD)
 
 
 @dataclass(frozen=True, eq=False)

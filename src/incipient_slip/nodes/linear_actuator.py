@@ -15,6 +15,14 @@ with `wait_tare: true` also until the BioTac reader's tare is done (`/biotac/sta
 period runs on an untared P_DC (F_N would read tens of kPa). Period 0 starts when they are: its
 step and tick come one period later.
 
+`mode: commanded` (rig identification, launch/identify.yaml): no steps of its own; each
+`ActuatorCommand(period=k)` moves the stage to `start_mm + position_mm` (clamped to the limits,
+with a warning) and publishes `ActuatorState(step_index=k)` once the move is done and read back;
+an older or repeated period is refused and counted. A move may take `move_timeout_s` plus its
+distance at `speed_mm_s`. On shutdown (the end, Ctrl-C, SIGTERM) it moves back to start_mm, where
+the tension spring is slack, so an interrupted identification leaves the rig unloaded. Commands before the readers and the tare are in wait for them (the
+newest kept).
+
 Safety of its own: a target outside [limit_min_mm, limit_max_mm] is refused; a fault flag (FS
 stalled), a lost reference (WR after a reset), no reply, or a position that is not the target
 stops the protocol: the stage is told to stop and the node exits 3 with one line. A serial port
@@ -28,7 +36,7 @@ from incipient_slip.devices import zaber
 from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.nodes.rig_check import apply_rig_config
-from incipient_slip.messages import ActuatorState, BiotacStatus, GripCommand
+from incipient_slip.messages import ActuatorCommand, ActuatorState, BiotacStatus, GripCommand
 
 EXIT_NO_DEVICE = 2
 EXIT_FAULT = 3
@@ -44,7 +52,8 @@ def step_target_mm(k: int, start_mm: float, travel_mm: float, steps: int) -> flo
 class LinearActuator(Node):
     """Pulls the object one step per period on a Zaber stage and publishes the period tick."""
 
-    INPUTS = {GripCommand.TOPIC: GripCommand, BiotacStatus.TOPIC: BiotacStatus}
+    INPUTS = {GripCommand.TOPIC: GripCommand, BiotacStatus.TOPIC: BiotacStatus, ActuatorCommand.TOPIC: ActuatorCommand}
+    OPTIONAL_INPUTS = frozenset({GripCommand.TOPIC, ActuatorCommand.TOPIC})    # by mode
     OUTPUTS = {ActuatorState.TOPIC: ActuatorState}
     PARAMS = {
         "rig_config": Param("", help="config/rig.yaml: unset parameters from its zaber section"),
@@ -65,6 +74,9 @@ class LinearActuator(Node):
         "move_timeout_s": Param(0.4, lo=0.01, hi=60.0, help="a step must finish within this"),
         "home_timeout_s": Param(60.0, lo=0.1, hi=600.0, help="homing must finish within this"),
         "lockstep": Param(False, choices=(False, True), help="step k+1 waits for GripCommand(period=k)"),
+        "mode": Param("steps", choices=("steps", "commanded"),
+                      help="steps: the paper's pull, one step per period; commanded: go where /actuator/command says"),
+        "speed_mm_s": Param(5.0, lo=0.01, hi=1000.0, help="commanded: a move may take move_timeout_s + distance / this"),
         "exit_when_done": Param(False, choices=(False, True), help="exit 0 after the last step"),
         "wait_subscribers": Param(1, lo=0, hi=100, help="started by hand: step 0 waits for this many readers of the tick"),
         "wait_timeout_s": Param(10.0, lo=0.0, hi=3600.0, help="then starts anyway, with a warning"),
@@ -85,15 +97,22 @@ class LinearActuator(Node):
         self.tared = not p("wait_tare")
         if not self.tared:
             self.create_subscription(BiotacStatus, self.on_biotac_status)
+        self.commanded = p("mode") == "commanded"
+        self.pending: ActuatorCommand | None = None
+        self.last_period, self.refused = -1, 0
+        if self.commanded:
+            self.create_subscription(ActuatorCommand, self.on_command)
         self.client = zaber.ZaberClient(port or self._open(), device=p("device"), axis=p("axis"),
                                         microsteps_per_mm=p("microsteps_per_mm"),
                                         timeout_s=p("reply_timeout_s"), name=p("port"))
+        if self.commanded:         # before the port closes
+            self.on_shutdown(self._unload)
         self.on_shutdown(self._close)
         if not self._startup():
             return
         self._wait_until = time.monotonic() + p("wait_timeout_s")
         self._started = False
-        self.create_timer(p("period_s"), self.step)
+        self.create_timer(p("period_s") if not self.commanded else 0.05, self.step)
 
     def _open(self):
         import serial     # pyserial; imported here so that tests can pass a port of their own
@@ -157,6 +176,9 @@ class LinearActuator(Node):
                 self.warn(f"no BioTac tare after {self.param('wait_timeout_s'):g} s; starting")
             self._started = True
             return        # period 0 starts now (after the tare): its step and tick come one period later
+        if self.commanded:
+            self.move_commanded()
+            return
         if self.param("lockstep") and k > 0 and self.answered < k - 1:
             self.warn(f"step {k} waits for the grip command of period {k - 1}", throttle_s=5.0)
             return
@@ -174,15 +196,47 @@ class LinearActuator(Node):
             if self.param("exit_when_done"):
                 self.shutdown("protocol done")
 
-    def _move_to(self, target_mm: float, during: str) -> float:
+    def on_command(self, msg: ActuatorCommand):
+        if msg.period <= max(self.last_period, self.pending.period if self.pending else -1):
+            self.refused += 1
+            self.warn(f"refused ActuatorCommand(period={msg.period}): period {self.last_period} is done "
+                      f"({self.refused} refused)", throttle_s=1.0)
+            return
+        self.pending = msg
+        if self._started:
+            self.move_commanded()
+
+    def move_commanded(self):
+        """Commanded mode: move to the newest command's position and publish its tick."""
+        msg, self.pending = self.pending, None
+        if msg is None or self.failed:
+            return
+        lo, hi = self.param("limit_min_mm"), self.param("limit_max_mm")
+        target = self.param("start_mm") + msg.position_mm
+        clamped = min(max(target, lo), hi)
+        if clamped != target:
+            self.warn(f"ActuatorCommand(period={msg.period}) to {target:.4f} mm is outside [{lo}, {hi}] mm; "
+                      f"moving to {clamped:.4f} mm", throttle_s=1.0)
+        try:
+            here = self.client.position_mm()
+            timeout = self.param("move_timeout_s") + abs(clamped - here) / self.param("speed_mm_s")
+            position = self._move_to(clamped, f"command {msg.period}", timeout)
+        except zaber.ZaberError as exc:
+            self._fault(f"command {msg.period}: {exc}")
+            return
+        self.last_period = msg.period
+        self.state_pub.publish(ActuatorState(position_mm=position, step_index=msg.period, busy=False))
+
+    def _move_to(self, target_mm: float, during: str, timeout_s: float | None = None) -> float:
         """Moves to `target_mm` within the configured limits and returns the position read back."""
         lo, hi = self.param("limit_min_mm"), self.param("limit_max_mm")
         if not lo <= target_mm <= hi:
             raise zaber.ZaberError(f"target {target_mm:.4f} mm is outside the configured travel "
                                    f"[{lo}, {hi}] mm: refused")
         self.client.move_abs_mm(target_mm)
-        self.client.wait_idle(self.param("move_timeout_s") if during.startswith("step")
-                              else self.param("home_timeout_s"), during)
+        if timeout_s is None:
+            timeout_s = self.param("move_timeout_s") if during.startswith("step") else self.param("home_timeout_s")
+        self.client.wait_idle(timeout_s, during)
         position = self.client.position_mm()
         if abs(position - target_mm) > self.param("tolerance_mm"):
             raise zaber.ZaberError(f"stage at {position:.4f} mm after {during}, target "
@@ -197,6 +251,19 @@ class LinearActuator(Node):
             pass
         self.log(f"linear_actuator: FAULT: {text}; the stage is stopped, the run cannot go on")
         self.shutdown("stage fault", EXIT_FAULT)
+
+    def _unload(self):
+        """Commanded mode ends with the stage at start_mm, where the tension spring is slack: an
+        interrupted identification leaves the rig unloaded whatever its other nodes do."""
+        if self.failed or self.last_period < 0:
+            return
+        try:
+            here = self.client.position_mm()
+            timeout = self.param("move_timeout_s") + abs(here - self.param("start_mm")) / self.param("speed_mm_s")
+            self._move_to(self.param("start_mm"), "the move back to start_mm", timeout)
+            self.log(f"back at start_mm {self.param('start_mm'):g} mm: the spring is slack")
+        except zaber.ZaberError as exc:
+            self.log(f"linear_actuator: could not move back to start_mm: {exc}; the spring may be loaded")
 
     def _close(self):
         self.log(f"steps done {self.k}/{self.steps}; serial {dict(self.client.stats)}")

@@ -16,7 +16,9 @@ at the period start, `ActuatorState` at its end. The runtime reads stamp 0 as "s
 so a message due at t = 0 is stamped 1 ns (within every consumer's half-sample tolerance).
 
 Protocols: `closed_loop` applies the F_N of `/grip/command` (`normal_force_kpa` before the first
-command; `hold=True` keeps the current force); `collection` redraws F_N each period exactly as
+command; `hold=True` keeps the current force); `commanded` (identification, launch/identify.yaml)
+does the same and puts the actuator where `/actuator/command` says instead of stepping it (clamped
+to [0, actuator_limit_mm]; in lock-step period k+1 waits for both commands of period k); `collection` redraws F_N each period exactly as
 `sim.protocols.collection_forces_kpa(seed, steps)`. `seed` is the rig's own seed (series i of
 a data set is `sim.rig.series_seed(dataset_seed, i)`). `/pzt/command` switches the injection
 from the next period on; `injection_db` (default: the scene's) sets it at the start.
@@ -46,7 +48,7 @@ import numpy as np
 from incipient_slip import control
 from incipient_slip.errors import EXIT_FAULT
 from incipient_slip.messages import (
-    PAC_RATE_HZ, PAC_SAMPLES_PER_FRAME, PERIOD_NS, ActuatorState, BiotacPac, BiotacSlow, GripCommand, ObjectPose, PztCommand, PztState,
+    PAC_RATE_HZ, PAC_SAMPLES_PER_FRAME, PERIOD_NS, ActuatorCommand, ActuatorState, BiotacPac, BiotacSlow, GripCommand, ObjectPose, PztCommand, PztState,
     RobotState, SimTruth,
 )
 from incipient_slip.graph.params import Param, ParamError
@@ -55,7 +57,7 @@ from incipient_slip.sim.protocols import collection_forces_kpa
 from incipient_slip.sim.rig import PeriodOutput, Rig
 from incipient_slip.sim.scene import SceneError, load_scene
 
-PROTOCOLS = ("closed_loop", "collection")
+PROTOCOLS = ("closed_loop", "collection", "commanded")
 PAC_FRAME = PAC_SAMPLES_PER_FRAME
 FRAMES_PER_PERIOD = 50
 SLOW_FRAME_NS = 10_000_000
@@ -76,15 +78,19 @@ def slow_frame_stamps_ns(k: int) -> np.ndarray:
 class RigSim(Node):
     """Steps the simulated rig one period at a time and publishes what the devices would."""
 
-    INPUTS = {GripCommand.TOPIC: GripCommand, PztCommand.TOPIC: PztCommand}
-    OPTIONAL_INPUTS = frozenset({PztCommand.TOPIC})     # the scene sets the injection; a command may switch it
+    INPUTS = {GripCommand.TOPIC: GripCommand, PztCommand.TOPIC: PztCommand, ActuatorCommand.TOPIC: ActuatorCommand}
+    # the scene sets the injection, a command may switch it; only `commanded` reads the actuator's
+    OPTIONAL_INPUTS = frozenset({PztCommand.TOPIC, ActuatorCommand.TOPIC})
     OUTPUTS = {t.TOPIC: t for t in (BiotacPac, BiotacSlow, ObjectPose, PztState, RobotState, SimTruth, ActuatorState)}
     PARAMS = {
         "scene": Param("", help='scene file or name (scenes/); "": the scene of the method (control.SCENE_OF_METHOD)'),
         "method": Param("injection", help='the closed loop\'s method, whose scene scene:="" runs'),
         "material": Param("", help='object material ("": the scene\'s first)'),
+        "params": Param("", help="an identified rig's params overlay on the scene (docs/identification.md)"),
         "seed": Param(0, lo=0, help="the rig's seed"),
-        "protocol": Param("closed_loop", choices=PROTOCOLS, help="closed_loop: apply /grip/command; collection: the data-set forces"),
+        "protocol": Param("closed_loop", choices=PROTOCOLS, help="closed_loop: apply /grip/command; collection: the "
+                          "data-set forces; commanded: /grip/command and the actuator at /actuator/command"),
+        "actuator_limit_mm": Param(48.0, lo=0.0, hi=50.0, help="commanded: the actuator never goes past this (mm)"),
         "normal_force_kpa": Param(control.DEFAULT_INITIAL_FORCE_KPA, lo=0.0, hi=control.SAFETY_LIMIT_KPA,
                                   help="F_N before the first command (kPa)"),
         "injection_db": Param(None, help="PZT intensity (dB); None: the scene's"),
@@ -101,7 +107,7 @@ class RigSim(Node):
     def __init__(self, **kwargs):
         super().__init__("rig_sim", **kwargs)
         try:
-            scene = load_scene(control.scene_of(self.param("scene"), self.param("method")))
+            scene = load_scene(control.scene_of(self.param("scene"), self.param("method")), self.param("params") or None)
         except (SceneError, ValueError) as exc:        # run_node reports a ParamError in one line, exit 2
             raise ParamError(f"node {self.name!r}: parameter 'scene': {exc}") from None
         material = self.param("material") or scene.materials[0]
@@ -135,6 +141,10 @@ class RigSim(Node):
         self.truth_pub = self.create_publisher(SimTruth)
         self.tick_pub = self.create_publisher(ActuatorState)
         self.create_subscription(GripCommand, self.on_grip)
+        self.commanded = self.protocol == "commanded"
+        self.actuator_mm, self.last_actuator = 0.0, -1
+        if self.commanded:
+            self.create_subscription(ActuatorCommand, self.on_actuator)
         self.create_subscription(PztCommand, self.on_pzt)
 
         self.k = 0                        # next period to simulate
@@ -194,6 +204,9 @@ class RigSim(Node):
         """Simulates period self.k at the current force; None (and a fault exit) on a sim error."""
         force = float(self.forces[self.k]) if self.forces is not None else self.force_kpa
         try:
+            if self.commanded:
+                self.rig.state.actuator_mm = self.actuator_mm
+                return self.rig.step_period(force, actuator_step=False)
             return self.rig.step_period(force)
         except (ValueError, ArithmeticError) as exc:   # SimulationError is a ValueError
             self.warn(f"period {self.k}: the simulator failed at F_N = {force} kPa: {exc}")
@@ -267,12 +280,31 @@ class RigSim(Node):
                           f"command {self.last_command} ({self.refused_commands} refused)", throttle_s=1.0)
             return
         self.last_command = msg.period
-        if self.protocol == "closed_loop" and not msg.hold:
+        if self.protocol in ("closed_loop", "commanded") and not msg.hold:
             self.force_kpa = control.applied_force(msg.normal_force_kpa, self.force_kpa)
             if self.force_kpa != msg.normal_force_kpa:
                 self.warn(f"GripCommand(period={msg.period}) asked {msg.normal_force_kpa} kPa; applying "
                           f"{self.force_kpa} kPa (safety limit {control.SAFETY_LIMIT_KPA} kPa)", throttle_s=1.0)
-        if self.lockstep:
+        if self.lockstep and (not self.commanded or self.last_actuator == msg.period):
+            self.advance()
+
+    def on_actuator(self, msg: ActuatorCommand) -> None:
+        # checked as a grip command is: for the period just simulated, clamped to the actuator's travel
+        newest = self.k - 1
+        ok = msg.period == newest if self.lockstep else self.last_actuator < msg.period <= newest
+        if not ok or self.done:
+            if not ok:
+                self.refused_commands += 1
+                self.warn(f"refused ActuatorCommand(period={msg.period}): the rig is at period {newest}",
+                          throttle_s=1.0)
+            return
+        self.last_actuator = msg.period
+        limit = self.param("actuator_limit_mm")
+        self.actuator_mm = min(max(msg.position_mm, 0.0), limit)
+        if self.actuator_mm != msg.position_mm:
+            self.warn(f"ActuatorCommand(period={msg.period}) asked {msg.position_mm} mm; moving to "
+                      f"{self.actuator_mm} mm (limits 0..{limit} mm)", throttle_s=1.0)
+        if self.lockstep and self.last_command == msg.period:
             self.advance()
 
     def on_pzt(self, msg: PztCommand) -> None:

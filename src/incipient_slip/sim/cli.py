@@ -8,10 +8,10 @@ from pathlib import Path
 from incipient_slip.errors import UsageError
 
 
-def _scene(name: str):
+def _scene(name: str, overlay=None):
     from .scene import SceneError, load_scene
     try:
-        return load_scene(name)
+        return load_scene(name, overlay)
     except SceneError as exc:
         raise UsageError(str(exc)) from exc
 
@@ -21,7 +21,7 @@ def cmd_dataset(args) -> int:
     from ..cluster import check_scheduler, check_workers, open_client
     from .dataset import write_dataset
 
-    scene = _scene(args.scene)
+    scene = _scene(args.scene, args.params)
     check_scheduler(args.scheduler)
     if args.series < 1:
         raise UsageError(f"--series must be >= 1, got {args.series}")
@@ -61,6 +61,8 @@ def register(subparsers) -> None:
         "LocalCluster, --scheduler tcp://HOST:PORT on a running dask cluster (--out then on a file "
         "system every worker can write).")
     p.add_argument("--scene", required=True, help="scene name in scenes/ (paper, no_injection, ...) or a YAML path")
+    p.add_argument("--params", metavar="OVERLAY", help="an identified rig's params overlay on the scene "
+                   "(launch identify.yaml; docs/identification.md)")
     p.add_argument("--series", type=int, required=True, help="number of series to write")
     p.add_argument("--seed", type=int, default=0, help="data set seed (default 0)")
     p.add_argument("--out", required=True, help="output directory")

@@ -20,6 +20,8 @@ from .scene import Scene
 def material_mu(params: dict, material: str) -> float:
     """Return the material's friction coefficient after the friction spread (`Rig` adds its jitter to it)."""
     mats = params["materials"]
+    if "mu_identified" in mats[material]:       # measured on a rig (docs/identification.md): no spread
+        return float(mats[material]["mu_identified"])
     mu_mean = float(np.mean([m["mu_static"] for m in mats.values()]))
     return mu_mean + params["stick_slip"]["mu_spread_scale"] * (mats[material]["mu_static"] - mu_mean)
 

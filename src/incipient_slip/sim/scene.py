@@ -16,6 +16,7 @@ prerequisite is missing, an unknown effect or an unknown key is a SceneError nam
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -91,6 +92,68 @@ def load_params(name_or_path: str | Path = "default") -> tuple[dict, dict, str]:
     return values, units, str(path)
 
 
+def load_overlay(path: str | Path) -> dict:
+    """Return a params overlay (`slip` identification's output, docs/identification.md): sections of
+    {value, unit, source, interval} entries plus its provenance; SceneError names a bad one."""
+    path = Path(path)
+    if not path.is_file():
+        raise SceneError(f"params overlay not found: {path}")
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise SceneError(f"{path}: not valid YAML: {exc}") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("provenance"), dict):
+        raise SceneError(f"{path}: not a params overlay (no 'provenance' mapping; "
+                         "write one with launch identify.yaml)")
+    return doc
+
+
+def overlay_entries(doc: dict, where: str = "overlay") -> dict[tuple, dict]:
+    """Return {(section, key) or ("materials", material, key): entry} of an overlay."""
+    out = {}
+    for section, entries in doc.items():
+        if section == "provenance":
+            continue
+        if not isinstance(entries, dict):
+            raise SceneError(f"{where}: {section} must be a mapping")
+        for key, entry in entries.items():
+            if section == "materials":
+                if not isinstance(entry, dict):
+                    raise SceneError(f"{where}: materials.{key} must be a mapping")
+                for mkey, mentry in entry.items():
+                    out[(section, key, mkey)] = mentry
+            else:
+                out[(section, key)] = entry
+    for name, entry in out.items():
+        if not isinstance(entry, dict) or not {"value", "unit", "source"} <= set(entry):
+            raise SceneError(f"{where}: {'.'.join(name)} needs value, unit and source")
+        v = entry["value"]
+        if not (isinstance(v, (int, float)) and math.isfinite(v)):
+            raise SceneError(f"{where}: {'.'.join(name)} = {v!r} is not a finite number")
+    return out
+
+
+def apply_overlay(params: dict, doc: dict, where: str = "overlay", values: dict | None = None) -> dict:
+    """Return params with the overlay's values (or `values`, {name tuple: value}, in their place);
+    an overlay names only known parameters, plus a material's measured `mu_identified`."""
+    params = copy.deepcopy(params)
+    for name, entry in overlay_entries(doc, where).items():
+        value = float((values or {}).get(name, entry["value"]))
+        if name[0] == "materials":
+            _, material, key = name
+            if material not in params["materials"]:
+                raise SceneError(f"{where}: unknown material {material!r}")
+            if key not in params["materials"][material] and key != "mu_identified":
+                raise SceneError(f"{where}: materials.{material}.{key}: unknown parameter")
+            params["materials"][material][key] = value
+        else:
+            section, key = name
+            if section not in params or key not in params[section]:
+                raise SceneError(f"{where}: {section}.{key}: unknown parameter")
+            params[section][key] = value
+    return params
+
+
 def _apply_overrides(params: dict, overrides: dict, where: str) -> dict:
     params = copy.deepcopy(params)
     for section, entries in (overrides or {}).items():
@@ -153,8 +216,17 @@ def scene_from_dict(doc: dict, where: str = "scene", yaml_text: str = "") -> Sce
                  units=units)
 
 
-def load_scene(name_or_path: str | Path) -> Scene:
-    """Return the Scene named `name_or_path` (scenes/NAME.yaml) or read from that path."""
+def load_scene(name_or_path: str | Path, overlay: str | Path | None = None) -> Scene:
+    """Return the Scene named `name_or_path` (scenes/NAME.yaml) or read from that path; with
+    `overlay`, an identified rig's params overlay applied on top (docs/identification.md)."""
+    scene = _load_scene(name_or_path)
+    if overlay:
+        import dataclasses
+        scene = dataclasses.replace(scene, params=apply_overlay(scene.params, load_overlay(overlay), str(overlay)))
+    return scene
+
+
+def _load_scene(name_or_path: str | Path) -> Scene:
     path = Path(name_or_path)
     if not path.suffix:
         path = scenes_dir() / f"{name_or_path}.yaml"
