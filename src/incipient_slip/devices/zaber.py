@@ -298,13 +298,15 @@ class ZaberClient:
 
     def wait_idle(self, timeout_s: float, during: str = "a move") -> Reply:
         """Polls status until IDLE (checking the warning flag each time); ZaberTimeout when the
-        axis is still BUSY after `timeout_s`."""
+        axis is still BUSY after `timeout_s`: a BUSY asked for after the deadline (one asked
+        before it and read late, on a loaded host, says nothing about the device then)."""
         deadline = self.clock() + timeout_s
         while True:
+            expired = self.clock() >= deadline
             reply = self.check(self.status(), during)
             if not reply.busy:
                 return reply
-            if self.clock() >= deadline:
+            if expired:
                 raise ZaberTimeout(f"{self.name} device {self.device} axis {self.axis} still "
                                    f"BUSY after {timeout_s:g} s during {during}")
             time.sleep(self.poll_s)
