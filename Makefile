@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-load test-slow reproduce reproduce-quick bench bench-graph bench-cli bench-curve bench-bag bench-sim bench-grid bench-estimator bench-loop bench-loop-viewer clean
+.PHONY: demo test test-load test-slow reproduce reproduce-quick bench bench-graph bench-cli bench-curve bench-bag bench-sim bench-grid bench-estimator bench-loop bench-loop-viewer bench-emulated-load clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -95,3 +95,10 @@ bench-loop: $(STAMP)
 # the same with the viewer bridge and a Foxglove client that never reads (docs/performance.md, "Live view")
 bench-loop-viewer: $(STAMP)
 	$(BIN)/python bench/bench_loop.py --viewer stalled
+
+# the emulated launch (rig:=emulated steps:=20) EMU_RUNS times beside EMU_HOGS busy-loop CPU hogs
+# (stopped at the end): the pass count (docs/emulated.md, "Under load"; needs ur-rtde)
+EMU_RUNS ?= 10
+EMU_HOGS ?= 2
+bench-emulated-load: $(STAMP)
+	$(BIN)/python bench/bench_emulated_load.py --runs $(EMU_RUNS) --hogs $(EMU_HOGS)

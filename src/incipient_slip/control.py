@@ -41,6 +41,25 @@ DEFAULT_MAX_STEP_KPA = 0.5      # rate limit per period (the collection grid mov
 DEFAULT_INITIAL_FORCE_KPA = 2.9  # paper: "no action" ends at 2.94 kPa, i.e. the initial grip
 DEFAULT_MIN_FORCE_KPA = 1.1     # lowest F_N of the paper's collection grid: contact is kept
 
+# The simulated scene each closed-loop method runs on: the PZT on only for injection, no
+# vibration path for the electrode methods, mechanics only for no action (the rig's physics
+# streams are the same). The one table: rig_sim and emulated_rig read it (scene:="" follows
+# method:=, as stabilize.yaml and collect.yaml leave it) and so do the experiments.
+SCENE_OF_METHOD = {"injection": "paper", "vibrotactile": "no_injection", "e19": "electrodes_only",
+                   "e10": "electrodes_only", "e4": "electrodes_only", "e1": "electrodes_only",
+                   "none": "mechanics"}
+
+
+def scene_of(scene: str, method: str) -> str:
+    """`scene`, or when it is "" the scene of `method` (SCENE_OF_METHOD); ValueError for an
+    unknown method."""
+    if scene:
+        return scene
+    if method not in SCENE_OF_METHOD:
+        raise ValueError(f"no scene for method {method!r} (known: {', '.join(SCENE_OF_METHOD)}); "
+                         f"name one with scene:=")
+    return SCENE_OF_METHOD[method]
+
 
 @dataclass(frozen=True)
 class ControlParams:
@@ -315,7 +334,9 @@ class RunJudge:
     The run's clock is its own count of periods: the first `command()` starts it, and each
     later command must be for the next period; one that jumps or goes back is dropped and
     counted (a forged period is never progress). A period is judged once its command, the
-    rig's F_N of that period and its last pose are in (and, for a command that acted on an
+    rig's F_N of that period (or a later one: a robot node starved through a whole period
+    stamps none in it; the period is then judged on the last F_N and counted in the summary's
+    `periods_without_force`) and its last pose are in (and, for a command that acted on an
     estimate, that estimate), or `data_wait_s` after its command when only the estimate is
     missing (lost with a killed estimator), or once `data_wait_s` passed both since its command
     and since the rig's last message when the rig's data are missing (`close(now_s)`). Commands may overtake the rig's
@@ -346,6 +367,7 @@ class RunJudge:
         self.truth: dict[int, tuple[float, float]] = {}       # period -> (s, F_T), simulated rig
         self.travel_mm = self.force_kpa = NAN                  # as last judged
         self.steps = self.holds = self.consecutive_holds = self.missing = self.dropped = 0
+        self.force_carried = 0                     # periods judged on an earlier period's F_N
         self.traces: dict[str, list] = {key: [] for key in TRACES}
         self.verdict = Verdict()
 
@@ -396,7 +418,7 @@ class RunJudge:
             # lock-step: the tick is the rig's last message of period k (its truth, F_N and
             # poses came before it on the same connection), so the trace never depends on
             # which of them happened to be read first
-            rig_done = k <= self.rig_ticked if self.lockstep else (k in self.force and self._pose_done(k))
+            rig_done = k <= self.rig_ticked if self.lockstep else (self._force_done(k) and self._pose_done(k))
             # an estimate lost with its publisher (killed) waits only data_wait_s; the rig's
             # data wait as long as the rig is still sending (a backlog draining)
             late = not self.lockstep and now_s >= (
@@ -411,6 +433,8 @@ class RunJudge:
         past = [j for j in self.travel if j <= k]
         if past:
             self.travel_mm = self.travel[max(past)][1]
+        if k not in self.force and math.isfinite(self.force_kpa):
+            self.force_carried += 1       # judged on the last F_N: none was stamped in period k
         self.force_kpa = self.force.get(k, self.force_kpa)
         for d in (self.travel, self.force, self.estimates):
             for j in [j for j in d if j <= k]:
@@ -443,7 +467,13 @@ class RunJudge:
         return {"outcome": v.kind, "success": v.kind == "success", "detail": v.detail,
                 "steps": self.steps, "max_steps": self.rules.max_steps,
                 "final_travel_mm": self.travel_mm, "final_force_kpa": self.force_kpa,
-                "holds": self.holds, "dropped_commands": self.dropped, **recorded, "traces": traces}
+                "holds": self.holds, "dropped_commands": self.dropped,
+                "periods_without_force": self.force_carried, **recorded, "traces": traces}
+
+    def _force_done(self, k: int) -> bool:
+        """Period k's F_N is in, or never will be: the robot's next one is in (its states come in
+        order; a robot node starved for a whole period stamps none in it)."""
+        return any(j >= k for j in self.force)
 
     def _pose_done(self, k: int) -> bool:
         """The last pose of period k is in: one within a sample of its end, or a later one

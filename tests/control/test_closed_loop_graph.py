@@ -152,14 +152,16 @@ def test_out_of_range_parameter_ends_the_launch_with_one_line_and_exit_2(graph, 
 def test_estimator_killed_mid_run_ends_the_launch_at_once_naming_it_and_leaves_no_files(graph, probe, tmp_path):
     """The estimator is required (every method but none needs it): its death ends the run.
     (The controller's hold when estimates stop is test_stale_estimates_make_the_controller_hold_...)
-    Ordered by messages, not by wall clock: the kill comes after five answered periods."""
+    Ordered by messages, not by wall clock: the kill comes after five answered periods, in a run
+    that cannot end by itself first (k 0 holds F_N, 20 000 steps: under make test-load a run
+    that reached the F_N limit after 115 periods ended before the nodes were looked up)."""
     from incipient_slip.models.estimator_core import default_model_path
     if not default_model_path("injection").exists():
         pytest.skip("shipped model models/injection.npz is missing (slip reproduce models)")
     estimates = probe.listen(SlipEstimate)
-    proc = graph.spawn(launch_cmd("s_d:=0.8", "k:=0.5", f"summary:={tmp_path / 'run.json'}"))
-    probe.until(lambda: len(estimates) >= 5, 60, procs=[proc], what="five estimates")
+    proc = graph.spawn(launch_cmd("k:=0.0", "steps:=20000", f"summary:={tmp_path / 'run.json'}"))
     nodes = probe.nodes(["estimator", "rig_sim", "grip_controller", "supervisor"], procs=[proc])
+    probe.until(lambda: len(estimates) >= 5, 60, procs=[proc], what="five estimates")
     os.kill(nodes["estimator"].pid, signal.SIGKILL)
     rc, out, err = finish(proc)
     assert rc == 128 + signal.SIGKILL, err[-2000:]

@@ -371,3 +371,32 @@ def test_in_lockstep_a_period_is_judged_on_its_messages_never_on_the_wall_clock(
     judge.rig_tick(0)          # the rig's tick ends period 0: its data (and truth) are all in
     judge.close(now_s=0.0)
     assert judge.steps == 1 and judge.traces["stick_ratio_estimate"] == [0.4]
+
+
+def test_a_period_the_robot_stamped_no_force_in_is_judged_once_a_later_force_comes():
+    """Real time: the robot node starved through period 1 publishes no F_N stamped in it. Its
+    next F_N (period 2) says none will come: period 1 is judged on the last F_N and counted,
+    not waited for while the mocap keeps streaming poses."""
+    judge = RunJudge(SupervisorRules(max_steps=100), data_wait_s=3.0)
+    for k in range(3):
+        rig, estimate, command = period_messages(k, force=2.0 + k)
+        for m in ([m for m in rig if m[0] != "robot" or k != 1]) + [estimate, command]:
+            feed(judge, m)
+    for t in range(100):              # poses go on; without period 2's F_N period 1 would wait
+        judge.pose(3 * PERIOD_NS + t, 0.5, now_s=float(t))
+        judge.close(float(t))
+    assert judge.steps == 3 and judge.traces["force_kpa"] == [2.0, 2.0, 4.0]
+    assert judge.summary()["periods_without_force"] == 1
+
+
+def test_one_table_gives_each_method_its_scene():
+    """control.SCENE_OF_METHOD is the one method-to-scene table (rig_sim, emulated_rig and the
+    experiments read it; stabilize.yaml's nested $(eval) is gone): every method has a scene."""
+    from incipient_slip.control import SCENE_OF_METHOD, scene_of
+    from incipient_slip.models.features import METHODS
+    assert set(SCENE_OF_METHOD) == set(METHODS) | {"none"}
+    assert [scene_of("", m) for m in ("injection", "vibrotactile", "e19", "e1", "none")] == [
+        "paper", "no_injection", "electrodes_only", "electrodes_only", "mechanics"]
+    assert scene_of("paper", "e19") == "paper"          # a scene named wins
+    with pytest.raises(ValueError, match="known: injection"):
+        scene_of("", "e20")

@@ -18,7 +18,8 @@ def test_stabilize_defaults_are_one_simulated_lockstep_injection_run():
     desc = load(find_launch_file("stabilize.yaml"))
     got = nodes(desc)
     assert set(got) == {"rig_sim", "estimator", "grip_controller", "supervisor"}
-    assert got["rig_sim"].params["scene"] == "paper" and got["rig_sim"].params["lockstep"] is True
+    assert (got["rig_sim"].params["scene"], got["rig_sim"].params["method"]) == ("", "injection")   # scene paper
+    assert got["rig_sim"].params["lockstep"] is True
     assert got["grip_controller"].params == {"method": "injection", "s_d": 0.3, "k": 2.0, "lockstep": True,
                                              "estimate_timeout_s": 0.4, "wait_timeout_s": 300.0}
     # no subscriber counts: each publisher waits for the readers the topology names
@@ -35,9 +36,16 @@ def test_stabilize_defaults_are_one_simulated_lockstep_injection_run():
 @pytest.mark.parametrize("method,scene", [("vibrotactile", "no_injection"), ("e19", "electrodes_only"),
                                           ("e1", "electrodes_only"), ("none", "mechanics")])
 def test_scene_follows_the_method(method, scene):
+    """The simulated rigs get the method and choose its scene from the one table (scene:="")."""
+    from incipient_slip.control import scene_of
     got = nodes(load(find_launch_file("stabilize.yaml"), {"method": method}))
-    assert got["rig_sim"].params["scene"] == scene
+    params = got["rig_sim"].params
+    assert (params["scene"], params["method"]) == ("", method) and scene_of("", method) == scene
+    emulated = nodes(load(find_launch_file("stabilize.yaml"), {"method": method, "rig": "emulated"}))
+    assert (emulated["emulated_rig"].params["scene"], emulated["emulated_rig"].params["method"]) == ("", method)
     assert ("estimator" in got) == (method != "none")
+    named = nodes(load(find_launch_file("stabilize.yaml"), {"method": method, "scene": "paper"}))
+    assert named["rig_sim"].params["scene"] == "paper"
 
 
 def test_no_action_runs_all_steps():
@@ -67,7 +75,7 @@ def test_hardware_rig_checks_the_devices_then_runs_every_device_node():
 def test_collect_records_the_collection_protocol():
     got = nodes(load(find_launch_file("collect.yaml"), {"injection": "false", "seed": "3"}))
     assert got["rig_sim"].params["protocol"] == "collection" and got["rig_sim"].required
-    assert got["rig_sim"].params["scene"] == "no_injection" and got["rig_sim"].params["seed"] == 3
+    assert got["rig_sim"].params["method"] == "vibrotactile" and got["rig_sim"].params["seed"] == 3   # scene no_injection
     assert "recorder" in got
 
 

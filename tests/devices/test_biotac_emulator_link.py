@@ -183,6 +183,33 @@ def test_real_time_bridge_drops_frames_the_host_does_not_read(tmp_path):
     assert link.stream.counters.frames_dropped >= 1
 
 
+def test_frames_the_emulator_sends_late_are_caught_up_not_dropped(tmp_path):
+    """An emulator starved of the CPU (hardware never is) sends its overdue frames in a burst
+    larger than the port's buffer; none is dropped for it, while the host keeps reading."""
+    signals = em.RigSignals("paper", "pla", seed=3, normal_force_kpa=3.0)
+    # one frame a second of wall time: after the catch-up the host has a second before the
+    # next frame is due, so no frame sent on time meets a full buffer here
+    server = em.PtyBridgeServer(em.EmulatedBridge([em.BiotacSpiSlave(signals)]), tmp_path / "biotac",
+                                frames_per_s=1.0).start()
+    link = bt.BridgeLink(str(tmp_path / "biotac"), stall_timeout_s=30.0)
+    try:
+        readings = poll_until(link, lambda r: len(r) >= 1)
+        sent = len(server.bridge.served)
+        server._next_due -= 100.0      # as if this process had not run for 100 frame periods
+        deadline = time.monotonic() + 60   # the host does not read during the burst (10 kB > 4 kB)
+        while len(server.bridge.served) < sent + 100:
+            assert time.monotonic() < deadline, "the emulator never caught up"
+            time.sleep(0.01)
+        readings += poll_until(link, lambda r: len(r) >= 100)
+    finally:
+        link.close()
+        server.stop()
+    assert server.tx_dropped == 0
+    assert link.stream.counters.frames_dropped == 0 and link.stream.counters.bridge_tx_dropped == 0
+    index = [r.frame_index for r in readings]
+    assert index == list(range(len(index)))
+
+
 def test_a_bridge_left_streaming_by_a_previous_host_starts_clean(tmp_path):
     server = rig_server(tmp_path)
     first = bt.BridgeLink(str(tmp_path / "biotac"))

@@ -56,7 +56,8 @@ def test_reader_publishes_the_emulators_values_exactly_and_counts_every_fault(gr
         probe.spin_until(lambda: len(probe.pac) >= FRAMES and probe.status
                          and probe.status[-1].frames_ok >= FRAMES, [emulator, reader])
         echo = subprocess.run([sys.executable, "-m", "incipient_slip.cli", "topic", "echo", "/biotac/status",
-                               "--json", "-n", "1"], env=graph.env, capture_output=True, text=True, timeout=30)
+                               "--json", "-n", "1"], env=graph.env, capture_output=True, text=True,
+                              timeout=120)      # a hang guard: importing the CLI took 30 s under make test-load
     finally:
         probe.close()
     served = [json.loads(line) for line in (tmp_path / "served.jsonl").read_text().splitlines()]

@@ -46,6 +46,56 @@ def test_connect_errors_name_the_fix():
     assert "Remote Control" in explain(RuntimeError("ur_rtde: Please enable remote control on the robot!"), "h")
 
 
+def test_a_receive_interface_that_lags_the_control_interface_is_not_taken_for_a_stop(monkeypatch):
+    """The control interface returns once the script runs; the receive interface's data may
+    still say "not running" for a while on a loaded host (make test-load: the robot fixture's
+    node latched "stopped" at connect). The link waits for the receive side to see it run."""
+    import socket
+    import types
+
+    from incipient_slip.nodes import ur5
+
+    class Receive:
+        def __init__(self, *args):
+            self.stale = 5                  # five reads of the state before the script started
+
+        def getRuntimeState(self):
+            self.stale -= 1
+            return ur5.RUNTIME_PLAYING if self.stale < 0 else 1
+
+        def getActualTCPPose(self):
+            return [0.4, 0.0, 0.3, 0.0, 0.0, 0.0]
+
+        def isConnected(self):
+            return True
+
+        def isProtectiveStopped(self):
+            return False
+
+        def isEmergencyStopped(self):
+            return False
+
+    class Control:
+        def __init__(self, *args):
+            pass
+
+        def setWatchdog(self, hz):
+            return True
+
+    monkeypatch.setitem(sys.modules, "rtde_receive", types.SimpleNamespace(RTDEReceiveInterface=Receive))
+    monkeypatch.setitem(sys.modules, "rtde_control", types.SimpleNamespace(RTDEControlInterface=Control))
+    server = socket.create_server(("127.0.0.1", 0))
+    monkeypatch.setattr(ur5, "RTDE_PORT", server.getsockname()[1])
+    cfg = ur5.LinkConfig("127.0.0.1", 125.0, 0.01, 0.1, LOOP, 2, 1.0, 2.0)
+    events = __import__("queue").Queue()
+    link = ur5.RobotLink(cfg, None, events, None)
+    try:
+        link._connect_once()
+        assert link._refresh() and link.snapshot["state"] == "ready"
+    finally:
+        server.close()
+
+
 # --- against the fake controller -------------------------------------------------------------
 
 rtde_control = pytest.importorskip("rtde_control", reason="ur-rtde has no wheel for this Python (CPython 3.10-3.12, x86-64 Linux)")
@@ -147,7 +197,7 @@ class Probe(Node):
                                     pdc_tare_counts=2000))
 
 
-def run(nodes, predicate, timeout_s=20.0):
+def run(nodes, predicate, timeout_s=60.0):        # a hang guard (inside the test's timeout)
     deadline = time.monotonic() + timeout_s
     while not predicate():
         assert time.monotonic() < deadline, "timed out"

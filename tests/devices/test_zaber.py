@@ -238,3 +238,67 @@ def test_the_client_takes_replies_whose_ids_are_padded_or_not(stage, pad_ids):
     client.move_abs_mm(1.0)
     client.wait_idle(5.0)
     assert client.position_mm() == pytest.approx(1.0, abs=1e-3)
+
+
+class StarvedPort(ScriptedPort):
+    """The reply is in the buffer, but this process was not run until after the deadline."""
+
+    def __init__(self, clock):
+        super().__init__([])
+        self.clock, self.starved = clock, False
+
+    def readline(self) -> bytes:
+        if not self.starved:            # the first read returns after the process waited 2 s
+            self.starved = True
+            self.clock.t += 2.0
+            return b""
+        return super().readline()
+
+
+def test_a_reply_that_came_while_the_host_was_starved_is_taken_not_a_timeout():
+    """The timeout is the device's silence, never this process's lateness: on a loaded host the
+    reply sits in the buffer when the deadline has passed (before: ZaberTimeout after 3 tries)."""
+    class Clock:
+        t = 0.0
+
+        def __call__(self):
+            return self.t
+    clock = Clock()
+    client = z.ZaberClient(StarvedPort(clock), microsteps_per_mm=1.0, timeout_s=0.5, clock=clock)
+    reply = client.command("get pos")
+    assert (reply.message_id, reply.data) == (0, "1234") and client.stats["timeouts"] == 0
+    # a device that is silent is still a timeout, after one read past the deadline
+    silent = z.ZaberClient(type("Silent", (), {"write": lambda s, d: None, "readline": lambda s: b""})(),
+                           microsteps_per_mm=1.0, timeout_s=0.01)
+    with pytest.raises(z.ZaberTimeout):
+        silent.status()
+
+
+def test_a_busy_read_late_is_not_a_stage_still_busy_after_the_deadline():
+    """The move's BUSY was asked for at once and read after the deadline (the host did not run
+    the node meanwhile); the stage was idle long before. Only a BUSY asked for after the deadline
+    is a timeout (before: 'still BUSY after 0.4 s', exit 3, seen beside two CPU hogs)."""
+    class Clock:
+        t = 0.0
+
+        def __call__(self):
+            return self.t
+    clock = Clock()
+
+    class Port(ScriptedPort):
+        def __init__(self, busy_polls):
+            super().__init__([])
+            self.polls, self.busy_polls = 0, busy_polls
+
+        def write(self, data):
+            body = data.decode().strip()[1:].split(":")[0].split()
+            self.polls += 1
+            status = "BUSY" if self.polls <= self.busy_polls else "IDLE"
+            clock.t += 1.0 if self.polls == 1 else 0.3      # the first reply is read a second later
+            self.lines.append(f"@01 1 {int(body[2]):02d} OK {status} -- 0\r\n".encode())
+    client = z.ZaberClient(Port(busy_polls=1), microsteps_per_mm=1.0, timeout_s=5.0, poll_s=0.0, clock=clock)
+    assert not client.wait_idle(0.4, "step 2").busy
+    # a stage that is really still BUSY after the deadline is a timeout
+    busy = z.ZaberClient(Port(busy_polls=99), microsteps_per_mm=1.0, timeout_s=5.0, poll_s=0.0, clock=clock)
+    with pytest.raises(z.ZaberTimeout, match="still BUSY"):
+        busy.wait_idle(0.4, "step 3")

@@ -126,3 +126,15 @@ def test_lockstep_summary_waits_for_the_last_periods_truth_within_a_liveness_lim
         assert not node.awaits_truth(300.0)                       # a rig without truth: never waits
     finally:
         node.close()
+
+def test_lockstep_reaches_the_judge(graph):
+    """`lockstep:=true` (stabilize.yaml passes it on the simulated rig) makes the judge wait for
+    the rig's tick, never for data_wait_s; the parameter was declared but not handed on."""
+    from incipient_slip.nodes.supervisor import Supervisor
+    for lockstep in (True, False):
+        node = Supervisor(params={"lockstep": lockstep, "summary_path": "", "quiet": True},
+                          graph_dir=graph.dir, heartbeat_s=0)
+        try:
+            assert node.judge.lockstep is lockstep
+        finally:
+            node.close()

@@ -14,7 +14,9 @@ Three layers, each speaking what the real part speaks:
   4.4 kHz of simulated time, frames packed by `devices.biotac.pack_data_frame`, faults injected.
 * `PtyBridgeServer`: the USB-CDC port. A pty whose slave is reachable through a stable symlink
   (like /dev/serial/by-id), host commands `S`, `X`, `?`; "real time" writes a frame every 10 ms
-  of wall time and drops frames the host does not take (as the firmware does), "lock-step"
+  of wall time and drops frames the host does not take (as the firmware does; frames this
+  process sends late, when it was not given the CPU in time, are caught up, never dropped: the
+  hardware it stands in for is never starved), "lock-step"
   writes the next frame as soon as the pty has taken the last one, so its buffer back-pressures
   the emulator and nothing is dropped (device time is simulated time).
   Unplug closes the pty (the host's reads fail with EIO) and replugs a new one after a delay.
@@ -342,6 +344,8 @@ class PtyBridgeServer:
     # Bytes unread by the host beyond which frames are dropped (real time), as the firmware drops
     # what USB cannot take. 4095 is also the most the pty's line discipline reports unread.
     BACKLOG_BYTES = 4095
+    # Frames sent late (this process starved) are held up to this much (about 6 s of frames)
+    LATE_BACKLOG_BYTES = 64 * 1024
 
     def __init__(self, bridge: EmulatedBridge, link: str | Path, lockstep: bool = False,
                  replug_after_s: float = 1.0, served_path: str | Path | None = None,
@@ -358,6 +362,7 @@ class PtyBridgeServer:
         self._stop = threading.Event()
         self._master = self._slave = -1
         self._out = bytearray()
+        self._catching_up = False
         self._thread: threading.Thread | None = None
         self.ready = threading.Event()
 
@@ -483,8 +488,17 @@ class PtyBridgeServer:
                 self.served_file.write(json.dumps(self.bridge.served[-1]) + "\n")
                 self.served_file.flush()
             if not self.lockstep:
+                # a frame due a period or more ago is late because this process was not run
+                # (real hardware never is): the burst that catches up goes out and the pty holds
+                # it until the host has read it down to the firmware's buffer; only then are
+                # frames dropped for a host that does not read, as the firmware drops them
+                backlog = len(self._out) + self._unread()
+                if time.monotonic() - self._next_due > self.frame_period_s:
+                    self._catching_up = True
+                elif backlog < self.BACKLOG_BYTES:
+                    self._catching_up = False
                 self._next_due += self.frame_period_s
-                if len(self._out) + self._unread() >= self.BACKLOG_BYTES:
+                if backlog >= (self.LATE_BACKLOG_BYTES if self._catching_up else self.BACKLOG_BYTES):
                     self.bridge.note_tx_dropped()   # the host is not reading: drop, as the firmware does
                     self.tx_dropped += 1
                     continue

@@ -26,6 +26,7 @@ __all__ = ["ZaberError", "ZaberTimeout", "ZaberRejected", "ZaberFault", "ZaberLi
            "REJECTION_REASONS", "WARNING_FLAGS", "DEFAULT_BAUD"]
 
 DEFAULT_BAUD = 115200
+MAX_LATE_LINES = 64      # lines read after a reply's deadline (what came while this process waited)
 
 # Why a device rejects a command (the data of an RJ reply), in words a user can act on.
 REJECTION_REASONS = {
@@ -209,9 +210,18 @@ class ZaberClient:
         return reply
 
     def _await(self, message_id: int) -> Reply | None:
+        """The reply with `message_id`, or None when none came within `timeout_s`. The deadline
+        is checked before each read, so what arrived while this process was not run (a loaded
+        host) is still read once the deadline has passed: the timeout is the device's silence,
+        not this process's lateness (lines already waiting are read, at most MAX_LATE_LINES)."""
         deadline = self.clock() + self.timeout_s
-        while self.clock() < deadline:
+        late_lines = 0
+        while True:
+            expired = self.clock() >= deadline
             raw = self.port.readline()
+            if expired and (not raw or late_lines >= MAX_LATE_LINES):
+                return None
+            late_lines += expired
             if not raw:
                 continue
             if not raw.endswith(b"\n"):
@@ -231,7 +241,6 @@ class ZaberClient:
                 self._drop("foreign_reply", raw)   # another axis, or a late reply to a timed-out command
             else:
                 return reply
-        return None
 
     def _drop(self, reason: str, raw: bytes) -> None:
         self.stats["dropped"] += 1
@@ -289,13 +298,15 @@ class ZaberClient:
 
     def wait_idle(self, timeout_s: float, during: str = "a move") -> Reply:
         """Polls status until IDLE (checking the warning flag each time); ZaberTimeout when the
-        axis is still BUSY after `timeout_s`."""
+        axis is still BUSY after `timeout_s`: a BUSY asked for after the deadline (one asked
+        before it and read late, on a loaded host, says nothing about the device then)."""
         deadline = self.clock() + timeout_s
         while True:
+            expired = self.clock() >= deadline
             reply = self.check(self.status(), during)
             if not reply.busy:
                 return reply
-            if self.clock() >= deadline:
+            if expired:
                 raise ZaberTimeout(f"{self.name} device {self.device} axis {self.axis} still "
                                    f"BUSY after {timeout_s:g} s during {during}")
             time.sleep(self.poll_s)

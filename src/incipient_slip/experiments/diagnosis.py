@@ -31,7 +31,7 @@ from .settings import Settings
 NAME = "diagnosis"
 HELP = "why the closed loop fails on the simulated rig: estimate vs pseudo label vs truth"
 DOC = "stabilization.md"
-SCENE_OF = {"injection": "paper", "e19": "electrodes_only"}
+SCENE_OF = {m: control.SCENE_OF_METHOD[m] for m in ("injection", "e19")}
 QUICK = ("rig seed 0 only (full 0 and 5), every loop the full 450 steps, F_T at slip from the "
          "10-series data set (full 100)")
 METHODS = tuple(SCENE_OF)

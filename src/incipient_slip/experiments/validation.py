@@ -36,8 +36,7 @@ RESULTS = "validation_results.json"
 TABLE_METHODS = ("none", "vibrotactile", "e1", "e4", "e10", "e19", "injection")
 LABELS = {"none": "no action", "vibrotactile": "vibrotactile", "e1": "E1", "e4": "E4", "e10": "E10",
           "e19": "E19", "injection": "injection", "oracle": "oracle (true ratio; diagnostic)"}
-SCENE_OF = {"injection": "paper", "vibrotactile": "no_injection", "e1": "electrodes_only", "e4": "electrodes_only",
-            "e10": "electrodes_only", "e19": "electrodes_only", "none": "mechanics", "oracle": "mechanics"}
+SCENE_OF = {**control.SCENE_OF_METHOD, "oracle": "mechanics"}     # the oracle reads the truth: no sensor path
 PAPER = {"none": (None, 2.48, 2.94, 450), "vibrotactile": (0.3, 1.32, 5.96, 397), "e1": (0.0, 0.89, 6.47, 139),
          "e4": (0.1, 2.52, 3.59, 450), "e10": (1.0, 1.55, 5.23, 450), "e19": (0.8, 1.40, 6.24, 435),
          "injection": (1.0, 1.38, 4.50, 450)}

@@ -7,14 +7,22 @@ Runs `devices.emulated_rig.EmulatedRig` (the BioTac bridge and the Zaber stage o
 `<dir>/pzt.wav`), all sharing one `sim.Rig` stepped in real time. The real device nodes talk
 to it (`launch stabilize.yaml rig:=emulated`); it publishes nothing of the rig's on the graph.
 
+It runs at a raised priority (`nice`, default -10, every thread of it):
+the devices it stands in for are never starved of the CPU, so a CPU hog beside the graph slows
+the host's nodes, as on the lab's rig, but not the devices' clocks and replies. Raising the
+priority needs CAP_SYS_NICE or an RLIMIT_NICE (`ulimit -e`); without it the node says so once
+and runs at the normal priority.
+
 The pull starts once the BioTac is tared (`linear_actuator wait_tare:=true`, as on the real
 rig). It logs the contact's truth every `log_every` periods.
 Address or port taken, or a bad scene: exit 2 with one line.
 """
 from __future__ import annotations
 
+import os
 import tempfile
 
+from incipient_slip import control
 from incipient_slip.devices.emulated_rig import EmulatedRig
 from incipient_slip.errors import EXIT_FAULT
 from incipient_slip.graph.params import Param, ParamError
@@ -28,7 +36,8 @@ class EmulatedRigNode(Node):
     PARAMS = {
         "dir": Param("", help="directory of the pty links biotac, zaber and the PZT sink pzt.wav "
                               "('' = a new temp dir)"),
-        "scene": Param("paper", help="simulator scene"),
+        "scene": Param("", help='simulator scene; "": the scene of the method (control.SCENE_OF_METHOD)'),
+        "method": Param("injection", help='the closed loop\'s method, whose scene scene:="" runs'),
         "material": Param("", help="object material ('' = the scene's first)"),
         "seed": Param(0, lo=0, help="seed of the simulated contact"),
         "robot_address": Param("127.0.0.3", help="loopback address of the fake UR controller"),
@@ -38,6 +47,7 @@ class EmulatedRigNode(Node):
         "rated_rms": Param(0.25, lo=1e-6, hi=1.0, help="the PZT's 0 dB RMS (pzt_injector rated_rms)"),
         "tick_s": Param(0.004, lo=0.001, hi=0.05, help="how often the contact and the NatNet pose advance, s"),
         "log_every": Param(10, lo=0, help="log the contact's truth every this many periods (0: never)"),
+        "nice": Param(-10, lo=-20, hi=19, help="scheduling priority of the emulators (hardware is never starved)"),
     }
     INPUTS: dict = {}
 
@@ -45,8 +55,14 @@ class EmulatedRigNode(Node):
         super().__init__("emulated_rig", **kwargs)
         p = self.param
         directory = p("dir") or tempfile.mkdtemp(prefix="slip-emulated-")
+        refused = set_priority(p("nice"))       # before the emulators' threads and processes start
+        if refused:
+            self.warn(f"runs at the normal priority, not nice {p('nice')} ({refused}): under CPU load "
+                      f"the emulated devices can be starved, which the hardware never is; give the "
+                      f"user an RLIMIT_NICE (ulimit -e) or run with CAP_SYS_NICE")
         try:
-            self.rig = EmulatedRig(directory, scene=p("scene"), material=p("material"), seed=p("seed"),
+            scene = control.scene_of(p("scene"), p("method"))
+            self.rig = EmulatedRig(directory, scene=scene, material=p("material"), seed=p("seed"),
                                    robot_address=p("robot_address"),
                                    natnet_command_port=p("natnet_command_port"),
                                    natnet_data_port=p("natnet_data_port"), start_mm=p("start_mm"),
@@ -57,8 +73,8 @@ class EmulatedRigNode(Node):
         self.on_shutdown(self.rig.stop)
         self.log(f"BioTac bridge {self.rig.biotac_link}, Zaber {self.rig.zaber_link}, NatNet "
                  f"127.0.0.1:{p('natnet_command_port')}, UR {p('robot_address')}, PZT sink "
-                 f"{self.rig.pzt_path}; scene {p('scene')}, material {self.rig.shared.rig.material}, "
-                 f"seed {p('seed')}, real time")
+                 f"{self.rig.pzt_path}; scene {scene}, material {self.rig.shared.rig.material}, "
+                 f"seed {p('seed')}, real time, nice {os.getpriority(os.PRIO_PROCESS, 0)}")
         self.logged = 0
         self.create_timer(p("tick_s"), self.tick)
 
@@ -80,6 +96,21 @@ class EmulatedRigNode(Node):
                 self.log(f"period {t.period}: F_N {t.normal_force_kpa:.2f} kPa (press {t.depth_mm:.2f} mm), "
                          f"actuator {t.actuator_mm:.3f} mm, y {t.object_y_mm:.3f} mm, "
                          f"stick ratio {t.stick_area_ratio:.2f}, PZT {'on' if t.pzt_on else 'off'}")
+
+
+def set_priority(nice: int) -> str:
+    """Sets the nice value of every thread of this process (on Linux it is per thread; threads
+    and processes started later inherit it); returns "" or, when the system refuses, why."""
+    try:
+        threads = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:               # no /proc: this thread, and what it starts
+        threads = [0]
+    try:
+        for tid in threads:
+            os.setpriority(os.PRIO_PROCESS, tid, nice)
+    except OSError as exc:        # EACCES/EPERM: no CAP_SYS_NICE, RLIMIT_NICE too low
+        return exc.strerror or str(exc)
+    return ""
 
 
 def main(argv=None):

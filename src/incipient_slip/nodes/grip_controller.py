@@ -67,7 +67,11 @@ class GripController(Node):
                           f"{self.param('estimate_timeout_s')} s; waiting (a liveness warning, the "
                           f"answer does not change)", throttle_s=5.0)
             return
-        self.send(self.core.clock(now))
+        answers = self.core.clock(now)
+        if answers:
+            self.warn(f"period {answers[-1].period}: no estimate {self.param('estimate_timeout_s')} s after "
+                      f"its tick: hold ({self.core.holds} holds)", throttle_s=1.0, key="late")
+        self.send(answers)
 
     def on_estimate(self, msg: SlipEstimate) -> None:
         self.send(*self.core.estimate(msg.period, msg.stick_ratio, msg.valid, msg.method, msg.reason))

@@ -41,7 +41,9 @@ class PztInjector(Node):
         "ramp_s": Param(0.03, lo=0.02, hi=0.05, help="ramp on start, stop and intensity change, s"),
         "enabled": Param(False, help="noise on at start"),
         "intensity_db": Param(0.0, lo=-120.0, hi=20.0, help="intensity I at start, dB"),
-        "heartbeat_timeout_s": Param(1.0, lo=0.0, hi=60.0, help="no heartbeat this long: ramp to zero (0 = off)"),
+        # liveness: every node beats once a second, so 3 s is three missed beats of every other
+        # node (the graph is gone), not one late beat on a loaded host
+        "heartbeat_timeout_s": Param(3.0, lo=0.0, hi=60.0, help="no other node's heartbeat this long: the graph is gone, ramp to zero (0 = off)"),
         "state_period_s": Param(0.1, lo=0.01, hi=10.0, help="period of /pzt/state and /pzt/output, s"),
         "seed": Param(0, lo=0, help="seed of the noise"),
     }

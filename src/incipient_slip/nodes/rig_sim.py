@@ -83,7 +83,8 @@ class RigSim(Node):
     OPTIONAL_INPUTS = frozenset({PztCommand.TOPIC, ActuatorCommand.TOPIC})
     OUTPUTS = {t.TOPIC: t for t in (BiotacPac, BiotacSlow, ObjectPose, PztState, RobotState, SimTruth, ActuatorState)}
     PARAMS = {
-        "scene": Param("paper", help="scene file or name (scenes/)"),
+        "scene": Param("", help='scene file or name (scenes/); "": the scene of the method (control.SCENE_OF_METHOD)'),
+        "method": Param("injection", help='the closed loop\'s method, whose scene scene:="" runs'),
         "material": Param("", help='object material ("": the scene\'s first)'),
         "params": Param("", help="an identified rig's params overlay on the scene (docs/identification.md)"),
         "seed": Param(0, lo=0, help="the rig's seed"),
@@ -106,8 +107,8 @@ class RigSim(Node):
     def __init__(self, **kwargs):
         super().__init__("rig_sim", **kwargs)
         try:
-            scene = load_scene(self.param("scene"), self.param("params") or None)
-        except SceneError as exc:        # run_node reports a ParamError in one line, exit 2
+            scene = load_scene(control.scene_of(self.param("scene"), self.param("method")), self.param("params") or None)
+        except (SceneError, ValueError) as exc:        # run_node reports a ParamError in one line, exit 2
             raise ParamError(f"node {self.name!r}: parameter 'scene': {exc}") from None
         material = self.param("material") or scene.materials[0]
         if material not in scene.materials:

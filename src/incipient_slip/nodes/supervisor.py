@@ -68,7 +68,8 @@ class Supervisor(Node):
         rules = control.SupervisorRules(p("max_travel_mm"), p("safety_limit_kpa"), p("max_steps"),
                                         p("max_consecutive_holds"), p("end_on_failure"), p("stop_on_travel"))
         self.judge = control.RunJudge(rules, p("max_missing_periods"), estimates_drive=p("method") != "none",
-                                      data_wait_s=p("data_wait_s"))
+                                      data_wait_s=p("data_wait_s"), lockstep=p("lockstep"))
+        self.force_carried = 0
         self.started = time.monotonic()
         # start-up waits on readiness: the clock until the first command starts at the rig's
         # first message (a loaded machine may take a minute to start the rig; the launch ends
@@ -127,6 +128,10 @@ class Supervisor(Node):
             self.events.publish(RunEvent(kind="step", step=i + 1, object_travel_mm=j.traces["travel_mm"][i],
                                          normal_force_kpa=j.traces["force_kpa"][i]))
         self.steps_sent = j.steps
+        if j.force_carried > self.force_carried:
+            self.force_carried = j.force_carried
+            self.warn(f"step {j.steps}: no F_N was stamped in its period (the robot node starved?); judged "
+                      f"on the last one ({j.force_carried} such period(s))", throttle_s=1.0, key="carried")
         timeout = self.param("startup_timeout_s" if j.next_period is None else "silence_timeout_s")
         if not verdict.ended and self.last_command is not None and now - self.last_command > timeout:
             verdict = control.Verdict("fault", f"graph silent: no grip command for {timeout} s after step "

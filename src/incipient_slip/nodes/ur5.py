@@ -47,6 +47,7 @@ from incipient_slip.messages import BiotacSlow, GripCommand, RobotRecover, Robot
 EXIT_NO_DEVICE = 2
 RTDE_PORT = 30004
 RUNTIME_PLAYING = 2         # RTDE runtime_state: the control script runs
+SCRIPT_START_S = 10.0       # longest wait for the receive interface to see the script run (liveness)
 RECEIVE_VARIABLES = ["timestamp", "actual_TCP_pose", "safety_status_bits", "runtime_state",
                      "robot_mode", "robot_status_bits"]
 
@@ -180,6 +181,9 @@ class RobotLink:
             raise RobotError(explain(exc, self.host)) from None
         if not watchdog:
             raise RobotError(f"robot {self.host}: the control script did not arm its watchdog")
+        # the control interface returns once the script runs; the receive interface's data can
+        # lag it on a loaded host, and a stale "not running" would be taken for a stop
+        self._wait_playing(SCRIPT_START_S)
         pose = list(self.receive.getActualTCPPose())
         if self.start_pose is None:
             self.start_pose = pose
@@ -247,6 +251,16 @@ class RobotLink:
             self.jobs.put(other)
         return job
 
+    def _wait_playing(self, timeout_s: float) -> bool:
+        """Waits until the receive interface reports the control script running; False after
+        `timeout_s` (then the next refresh reports the stop)."""
+        deadline = time.monotonic() + timeout_s
+        while self.receive.getRuntimeState() != RUNTIME_PLAYING:
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.01)
+        return True
+
     def _refresh(self) -> bool:
         """Reads the robot's state (all of it from the receive interface); False on a drop."""
         try:
@@ -305,9 +319,7 @@ class RobotLink:
             dash.brakeRelease()
             dash.disconnect()
             self.control.reuploadScript()
-            deadline = time.monotonic() + 5.0
-            while self.receive.getRuntimeState() != RUNTIME_PLAYING and time.monotonic() < deadline:
-                time.sleep(0.01)
+            self._wait_playing(SCRIPT_START_S)
             self.control.setWatchdog(self.cfg.watchdog_hz)     # a stopped program lost it
         except Exception as exc:
             self.events.put(("recovery", False, f"recovery failed: {exc}"))
