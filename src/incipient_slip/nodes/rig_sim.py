@@ -267,17 +267,22 @@ class RigSim(Node):
 
     # --- commands ------------------------------------------------------------------------------
 
+    def takes(self, what: str, period: int, last: int) -> bool:
+        """A command is for the period just simulated (lock-step: the one awaited), never an old or
+        future one; anything else is refused and counted. None after the last period."""
+        newest = self.k - 1
+        ok = period == newest if self.lockstep else last < period <= newest
+        if not ok:
+            self.refused_commands += 1
+            self.warn(f"refused {what}(period={period}): the rig is at period {newest}, last "
+                      f"command {last} ({self.refused_commands} refused)", throttle_s=1.0)
+        return ok and not self.done
+
     def on_grip(self, msg: GripCommand) -> None:
         # The node that moves the (simulated) hardware checks on its own: a command is for the
         # period just started (lock-step: the one awaited), never an old or future one, and its
         # force is clamped to the safety limit whatever the controller sent.
-        newest = self.k - 1
-        ok = msg.period == newest if self.lockstep else self.last_command < msg.period <= newest
-        if not ok or self.done:
-            if not ok:
-                self.refused_commands += 1
-                self.warn(f"refused GripCommand(period={msg.period}): the rig is at period {newest}, last "
-                          f"command {self.last_command} ({self.refused_commands} refused)", throttle_s=1.0)
+        if not self.takes("GripCommand", msg.period, self.last_command):
             return
         self.last_command = msg.period
         if self.protocol in ("closed_loop", "commanded") and not msg.hold:
@@ -289,14 +294,8 @@ class RigSim(Node):
             self.advance()
 
     def on_actuator(self, msg: ActuatorCommand) -> None:
-        # checked as a grip command is: for the period just simulated, clamped to the actuator's travel
-        newest = self.k - 1
-        ok = msg.period == newest if self.lockstep else self.last_actuator < msg.period <= newest
-        if not ok or self.done:
-            if not ok:
-                self.refused_commands += 1
-                self.warn(f"refused ActuatorCommand(period={msg.period}): the rig is at period {newest}",
-                          throttle_s=1.0)
+        # checked as a grip command is, and clamped to the actuator's travel
+        if not self.takes("ActuatorCommand", msg.period, self.last_actuator):
             return
         self.last_actuator = msg.period
         limit = self.param("actuator_limit_mm")
