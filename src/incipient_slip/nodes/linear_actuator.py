@@ -218,14 +218,17 @@ class LinearActuator(Node):
             self.warn(f"ActuatorCommand(period={msg.period}) to {target:.4f} mm is outside [{lo}, {hi}] mm; "
                       f"moving to {clamped:.4f} mm", throttle_s=1.0)
         try:
-            here = self.client.position_mm()
-            timeout = self.param("move_timeout_s") + abs(clamped - here) / self.param("speed_mm_s")
-            position = self._move_to(clamped, f"command {msg.period}", timeout)
+            position = self._move_at_speed(clamped, f"command {msg.period}")
         except zaber.ZaberError as exc:
             self._fault(f"command {msg.period}: {exc}")
             return
         self.last_period = msg.period
         self.state_pub.publish(ActuatorState(position_mm=position, step_index=msg.period, busy=False))
+
+    def _move_at_speed(self, target_mm: float, during: str) -> float:
+        """A commanded-mode move of any length: it may take move_timeout_s plus its distance at speed_mm_s."""
+        distance = abs(target_mm - self.client.position_mm())
+        return self._move_to(target_mm, during, self.param("move_timeout_s") + distance / self.param("speed_mm_s"))
 
     def _move_to(self, target_mm: float, during: str, timeout_s: float | None = None) -> float:
         """Moves to `target_mm` within the configured limits and returns the position read back."""
@@ -258,9 +261,7 @@ class LinearActuator(Node):
         if self.failed or self.last_period < 0:
             return
         try:
-            here = self.client.position_mm()
-            timeout = self.param("move_timeout_s") + abs(here - self.param("start_mm")) / self.param("speed_mm_s")
-            self._move_to(self.param("start_mm"), "the move back to start_mm", timeout)
+            self._move_at_speed(self.param("start_mm"), "the move back to start_mm")
             self.log(f"back at start_mm {self.param('start_mm'):g} mm: the spring is slack")
         except zaber.ZaberError as exc:
             self.log(f"linear_actuator: could not move back to start_mm: {exc}; the spring may be loaded")
