@@ -178,6 +178,11 @@ def read_period(obs: Observation, prev_y: float | None) -> tuple[float, float, f
 Protocol = Generator[Command, Observation, None]
 
 
+def spring_load_n(rec: Record, ks: float) -> float:
+    """The spring's pull in a period, Q = k_s (u - y) (N): what the sensors cannot give directly."""
+    return ks * (rec.u_mm - rec.y_mm)
+
+
 def ramp_slid(ramp: list[Record], rise_mm: float = labels.GROSS_SLIP_MM) -> bool:
     """The last period of a ramp (constant F_N, one actuator step per period) slid: the paper's
     rule, or y rose `rise_mm` more than the ramp's stuck steps raise it (the median of the
@@ -244,7 +249,7 @@ def run_protocol(plan: Plan, inputs: Inputs, records: list[Record]) -> Protocol:
             if ramp_slid(ramp, plan.slide_rise_mm) and len(ramp) >= 2:
                 ramp[-1].onset = True
                 prev = ramp[-2]
-                mu_onsets.append(ks * (prev.u_mm - prev.y_mm) / (fn * inputs.newton_per_kpa))
+                mu_onsets.append(spring_load_n(prev, ks) / (fn * inputs.newton_per_kpa))
             u = yield from unload(fn, u, trial)
             trial += 1
     if "lag" in plan.protocols and mu_onsets:
@@ -298,6 +303,8 @@ def _trials(records, phases) -> dict[int, list[Record]]:
 def stiffness_levels(records: list[Record], inputs: Inputs) -> list[dict]:
     """Per ramp: F_N, k_b (N/mm) and its standard error from y against Q over the stuck periods,
     the onset load, mu and the travel at onset (from the ramp's zero-load y)."""
+    from scipy.stats import linregress
+
     ks, gain = inputs.spring_n_per_mm, inputs.newton_per_kpa
     rows = []
     for trial, recs in sorted(_trials(records, ("ramp", "run-in")).items()):
@@ -308,26 +315,20 @@ def stiffness_levels(records: list[Record], inputs: Inputs) -> list[dict]:
                "slid": bool(slid), "k_b": math.nan, "k_b_se": math.nan, "mu": math.nan,
                "onset_travel_mm": math.nan, "q_n": [], "y_mm": []}
         if len(stuck) >= 5:
-            q = np.array([ks * (r.u_mm - r.y_mm) for r in stuck])
+            q = np.array([spring_load_n(r, ks) for r in stuck])
             y = np.array([r.y_mm for r in stuck])
             row["q_n"], row["y_mm"] = q.tolist(), y.tolist()
             # the upper part of the ramp (Q above 30 % of the largest) is the pad's bulk shear alone;
             # near zero load the interface's locked micro-slip still settles
             m = q >= 0.3 * q.max()
             if m.sum() >= 4 and np.ptp(q[m]) > 0:
-                a = np.vstack([q[m], np.ones(m.sum())]).T
-                coef, res, *_ = np.linalg.lstsq(a, y[m], rcond=None)
-                slope = float(coef[0])
-                dof = int(m.sum()) - 2
-                resid = y[m] - a @ coef
-                s2 = float(resid @ resid) / max(dof, 1)
-                se_slope = math.sqrt(s2 / float(((q[m] - q[m].mean()) ** 2).sum()))
-                if slope > 0:
-                    row["k_b"], row["k_b_se"] = 1.0 / slope, se_slope / slope ** 2
+                line = linregress(q[m], y[m])
+                if line.slope > 0:
+                    row["k_b"], row["k_b_se"] = 1.0 / line.slope, line.stderr / line.slope ** 2
             if slid:
                 last = stuck[-1]
                 # the limit lies between the last stuck load and the next step's: take the middle
-                q_on = ks * (last.u_mm - last.y_mm) * (1.0 + 0.5 * plan_step_fraction(stuck, ks))
+                q_on = spring_load_n(last, ks) * (1.0 + 0.5 * plan_step_fraction(stuck, ks))
                 row["mu"] = q_on / (fn * gain)
                 row["onset_travel_mm"] = last.y_mm - stuck[0].y_mm
                 row["q_onset_n"] = q_on
@@ -339,30 +340,26 @@ def plan_step_fraction(stuck: list[Record], ks: float) -> float:
     """Return the last step's load increment as a fraction of the last stuck load."""
     if len(stuck) < 2:
         return 0.0
-    q1, q0 = ks * (stuck[-1].u_mm - stuck[-1].y_mm), ks * (stuck[-2].u_mm - stuck[-2].y_mm)
+    q1, q0 = spring_load_n(stuck[-1], ks), spring_load_n(stuck[-2], ks)
     return max(0.0, (q1 - q0) / q1) if q1 > 0 else 0.0
 
 
 def fit_stiffness(rows: list[dict], inputs: Inputs, ref_force_n: float = 1.0) -> dict:
     """Return k_ref (N/mm at ref_force_n) and beta with 95 % intervals from the ramps after the
     run-in (log k_b = log k_ref + beta log(F / F_ref), least squares over the levels), and mu."""
+    from scipy.stats import linregress
+
     ramps = [r for r in rows if r["phase"] == "ramp" and math.isfinite(r["k_b"])]
     out: dict = {"ref_force_n": ref_force_n, "levels": len(ramps)}
     if len(ramps) >= 2:
         x = np.log(np.array([r["fn_n"] for r in ramps]) / ref_force_n)
         z = np.log(np.array([r["k_b"] for r in ramps]))
-        a = np.vstack([x, np.ones_like(x)]).T
-        coef, *_ = np.linalg.lstsq(a, z, rcond=None)
-        beta, log_k = float(coef[0]), float(coef[1])
+        line = linregress(x, z)
+        beta, log_k = float(line.slope), float(line.intercept)
         dof = len(ramps) - 2
-        if dof > 0:
-            resid = z - a @ coef
-            s2 = float(resid @ resid) / dof
-            cov = s2 * np.linalg.inv(a.T @ a)
-        else:
-            cov = np.diag([math.inf, math.inf])
         t = t95(dof)
-        se_beta, se_logk = math.sqrt(cov[0, 0]), math.sqrt(cov[1, 1])
+        # two levels fit exactly: no interval (linregress reports 0 there)
+        se_beta, se_logk = (line.stderr, line.intercept_stderr) if dof > 0 else (math.inf, math.inf)
         # the inputs: Q scales with k_s (so k_b does); the gain moves F, so k_ref by gain^-beta
         rel_in = math.hypot(inputs.spring_rel_sd, beta * inputs.gain_rel_sd)
         k = math.exp(log_k)
@@ -405,10 +402,10 @@ def lag_trials(records: list[Record], inputs: Inputs, stiff: dict) -> list[dict]
         release = [r for r in recs if r.phase == "lag-release"]
         if not hold or not low:
             continue
-        q_hold = ks * (hold[-1].u_mm - hold[-1].y_mm)
+        q_hold = spring_load_n(hold[-1], ks)
         f_hi, f_lo = hold[-1].fn_kpa * gain, low[0].fn_kpa * gain
         if not low[0].slid:
-            q = ks * (low[0].u_mm - low[0].y_mm)
+            q = spring_load_n(low[0], ks)
         elif "k_ref" in stiff:
             q = q_hold / (1.0 + ks * (1.0 / k_b(f_lo) - 1.0 / k_b(f_hi)))
         else:
@@ -416,7 +413,7 @@ def lag_trials(records: list[Record], inputs: Inputs, stiff: dict) -> list[dict]
         r = (q / mu - f_lo) / (f_hi - f_lo)
         # time the onset against the P_DC step (the F_N applied reaching 90 % of the step), not the
         # command: a robot's press loop takes its own time to unload the finger
-        target = low[0].fn_kpa if len(low) == 1 else min(r.fn_kpa for r in low)
+        target = min(r.fn_kpa for r in low)
         hi_kpa = hold[-1].fn_kpa
         step_at = next((i for i, rec in enumerate(low) if rec.fn_kpa <= target + 0.1 * (hi_kpa - target)), 0)
         slide_at = next((i for i, rec in enumerate(low) if rec.slid), None)
