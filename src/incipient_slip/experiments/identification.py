@@ -7,7 +7,6 @@ than the defaults across their plausible ranges (the recovery tests and docs/ide
 """
 from __future__ import annotations
 
-import dataclasses
 
 import numpy as np
 
@@ -29,16 +28,13 @@ def scene_with(hidden: dict, material: str = "pla", scene_name: str = "mechanics
     """Return the mechanics scene with the hidden values; mu is set as the material's identified mu."""
     from incipient_slip.sim.scene import load_scene
 
+    from .calibration import with_values
+
     scene = load_scene(scene_name)
-    params = {k: (dict(v) if isinstance(v, dict) else v) for k, v in scene.params.items()}
-    params["materials"] = {m: dict(v) for m, v in params["materials"].items()}
-    for key, value in hidden.items():
-        if key == "mu":
-            params["materials"][material]["mu_identified"] = value
-            continue
-        section, name = key.split(".")
-        params[section][name] = value
-    return dataclasses.replace(scene, params=params)
+    values = {tuple(k.split(".")): v for k, v in hidden.items() if k != "mu"}
+    if "mu" in hidden:
+        values[("materials", material)] = {**scene.params["materials"][material], "mu_identified": hidden["mu"]}
+    return with_values(scene, values)
 
 
 def identify_sim(scene, material: str, seed: int, plan: identify.Plan | None = None,

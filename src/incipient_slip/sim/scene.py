@@ -136,35 +136,33 @@ def overlay_entries(doc: dict, where: str = "overlay") -> dict[tuple, dict]:
 def apply_overlay(params: dict, doc: dict, where: str = "overlay", values: dict | None = None) -> dict:
     """Return params with the overlay's values (or `values`, {name tuple: value}, in their place);
     an overlay names only known parameters, plus a material's measured `mu_identified`."""
-    params = copy.deepcopy(params)
+    overrides: dict = {}
     for name, entry in overlay_entries(doc, where).items():
         value = float((values or {}).get(name, entry["value"]))
         if name[0] == "materials":
             _, material, key = name
-            if material not in params["materials"]:
-                raise SceneError(f"{where}: unknown material {material!r}")
-            if key not in params["materials"][material] and key != "mu_identified":
+            known = params["materials"].get(material)
+            if known is not None and key not in known and key != "mu_identified":
                 raise SceneError(f"{where}: materials.{material}.{key}: unknown parameter")
-            params["materials"][material][key] = value
+            overrides.setdefault("materials", {}).setdefault(material, dict(known or {}))[key] = value
         else:
-            section, key = name
-            if section not in params or key not in params[section]:
-                raise SceneError(f"{where}: {section}.{key}: unknown parameter")
-            params[section][key] = value
-    return params
+            overrides.setdefault(name[0], {})[name[1]] = value
+    return _apply_overrides(params, overrides, where, label="")
 
 
-def _apply_overrides(params: dict, overrides: dict, where: str) -> dict:
+def _apply_overrides(params: dict, overrides: dict, where: str, label: str = "overrides") -> dict:
+    """Return params with {section: {key: value}} in place; an unknown section or key names the file."""
+    at = f"{label}." if label else ""
     params = copy.deepcopy(params)
     for section, entries in (overrides or {}).items():
         if section not in params:
-            raise SceneError(f"{where}: overrides.{section}: unknown parameter section "
+            raise SceneError(f"{where}: {at}{section}: unknown parameter section "
                              f"(known: {', '.join(sorted(params))})")
         if not isinstance(entries, dict):
-            raise SceneError(f"{where}: overrides.{section} must be a mapping")
+            raise SceneError(f"{where}: {at}{section} must be a mapping")
         for key, value in entries.items():
             if key not in params[section]:
-                raise SceneError(f"{where}: overrides.{section}.{key}: unknown parameter "
+                raise SceneError(f"{where}: {at}{section}.{key}: unknown parameter "
                                  f"(known: {', '.join(sorted(params[section]))})")
             params[section][key] = value
     return params
