@@ -511,7 +511,9 @@ def figures(results: dict, records: list, out_dir: Path, stem: str = "identify")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     rig, mat = results["inputs"]["rig"], results["inputs"]["material"]
-    label = f"rig: {rig}; material {mat}" + (" (SIMULATED RIG)" if str(rig).startswith("sim") else "")
+    # rig:=emulated is the real device nodes around the same simulated contact: its numbers are simulated too
+    label = f"rig: {rig}; material {mat}" + (" (SIMULATED RIG)" if str(rig).startswith("sim") else
+                                             " (EMULATED DEVICES ON THE SIMULATED RIG)" if rig == "emulated" else "")
     paths = {}
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for row in results["levels"]:
