@@ -312,3 +312,21 @@ def test_the_bridge_lowers_its_session_group_only_when_it_leads_it(own_session, 
     if priority != "idle":                  # idle is SCHED_IDLE, not a nice value
         assert out[1] == ("10" if priority == "low" else "0")
     assert open("/proc/self/autogroup").read().split()[-1] == before
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/task"), reason="per-thread priorities are Linux's")
+@pytest.mark.parametrize("priority", ["low", "idle"])
+def test_the_bridge_lowers_threads_started_before_it_zeromqs_io_thread_included(priority):
+    """The node's ZeroMQ context starts its I/O thread before the bridge lowers its priority:
+    that thread must end below the graph's nodes too (Linux keeps nice and policy per thread)."""
+    code = ("import os, zmq\n"
+            "from incipient_slip.nodes.foxglove_bridge import lower_priority\n"
+            "sock = zmq.Context.instance().socket(zmq.PUB); sock.bind('inproc://x')\n"
+            "tids = [int(t) for t in os.listdir('/proc/self/task')]\n"
+            "assert len(tids) > 1, tids\n"
+            f"lower_priority({priority!r})\n"
+            "print(sorted({(os.sched_getscheduler(t), os.getpriority(os.PRIO_PROCESS, t)) for t in tids}))\n"
+            "sock.close(0)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
+    expected = [(os.SCHED_IDLE, 0)] if priority == "idle" else [(os.SCHED_OTHER, 10)]
+    assert out.stdout.strip() == str(expected), out.stderr

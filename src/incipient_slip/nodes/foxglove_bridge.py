@@ -112,26 +112,42 @@ class FoxgloveBridge(Node):
 
 
 def lower_priority(priority: str) -> None:
-    """Puts this process (its threads started from now on) below the graph's nodes.
+    """Puts this process (every thread it has, ZeroMQ's I/O thread included, and those it
+    starts from now on) below the graph's nodes.
 
-    Linux's scheduler shares the CPU between session groups ("autogroups", when the kernel has
-    them on and the process is in the root CPU cgroup) before it shares a group's time between its
-    processes by nice: a bridge alone in its session (a node started with `setsid`, as
+    Linux sets nice and the scheduling policy per thread: the node's ZeroMQ context started its
+    I/O thread before this runs, so each existing thread (/proc/self/task) is lowered too.
+    Linux's scheduler also shares the CPU between session groups ("autogroups", when the kernel
+    has them on and the process is in the root CPU cgroup) before it shares a group's time between
+    its processes by nice: a bridge alone in its session (a node started with `setsid`, as
     `bench/bench_loop.py` and some supervisors do) would weigh as much as each of the loop's
     nodes whatever its own nice. So when this process leads its session, its group's nice is
     lowered as well; a bridge in a shared session (a launch's, a terminal's) leaves that alone."""
     if priority == "normal":
         return
-    if priority == "idle" and hasattr(os, "SCHED_IDLE"):
-        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
-    else:                                   # no SCHED_IDLE (not Linux): nice is what there is
-        os.nice(10)
+    idle = priority == "idle" and hasattr(os, "SCHED_IDLE")
+    for tid in _thread_ids():
+        try:
+            if idle:
+                os.sched_setscheduler(tid, os.SCHED_IDLE, os.sched_param(0))
+            else:                           # no SCHED_IDLE (not Linux): nice is what there is
+                os.setpriority(os.PRIO_PROCESS, tid, max(os.getpriority(os.PRIO_PROCESS, tid), 10))
+        except OSError:                     # a thread that ended meanwhile
+            pass
     if os.getsid(0) == os.getpid():
         try:
             with open("/proc/self/autogroup", "w") as f:
                 f.write("19" if priority == "idle" else "10")
         except OSError:                     # no autogroups here, or not allowed: nothing to do
             pass
+
+
+def _thread_ids() -> list[int]:
+    """This process's thread ids (Linux); elsewhere the process itself (0: the calling thread)."""
+    try:
+        return [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        return [0]
 
 
 def main(argv=None):
