@@ -66,19 +66,28 @@ _cbrt = types.ExternalFunction("cbrt", types.float64(types.float64))   # libm's,
 
 
 _warm = False
+# any plausible rig: warm_up only walks the code paths (a stick, a slide and its two numpy callbacks)
+_WARM_PARAMS = {"newton_per_kpa": 0.4, "min_contact_force_n": 1e-4, "friction_limit_lag_s": 0.0, "period_s": 0.5,
+                "radius_mm": 6.7, "e_star_mpa": 0.05, "contact_saturation_radius_mm": 5.0, "mu_series": 0.55,
+                "mu_period_jitter": 0.01, "bulk_shear_n_per_mm": 0.5, "bulk_ref_force_n": 1.0,
+                "bulk_stiffening_exponent": 1.0, "g_star_int_mpa": 0.2, "spring_n_per_mm": 0.03,
+                "rate_strengthening": 0.02, "creep_reference_velocity_mm_s": 1.0, "restick_velocity_mm_s": 0.005,
+                "step_mm": 0.05, "mocap_rate_hz": 120.0, "mocap_noise_mm": 0.005}
 
 
-def warm_up(p: np.ndarray) -> None:
+def warm_up() -> None:
     """Load the compiled mechanics and their numpy callbacks once per process (from numba's cache,
     or compiled on a fresh checkout): ~0.3 s that would otherwise fall on the first period, which
-    a real-time driver (rig_sim, the emulated rig) must deliver on time. `p`: a rig's PARAMS."""
+    a real-time driver (rig_sim, the emulated rig) must deliver on time."""
     global _warm
     if _warm:
         return
+    p = np.array([_WARM_PARAMS[name] for name in PARAMS])
     s = new_state()
-    s[ACTUATOR] = 50.0                      # far beyond the friction limit: a slide, both callbacks
+    period(s, p, 3.0, 0.0, True)            # stuck
+    s[ACTUATOR] = 50.0                      # far beyond the friction limit: a slide
     period(s, p, 3.0, 0.0, True)
-    positions(s, p[P_K_SPRING], np.arange(4) / 120.0, np.empty(4))
+    positions(s, p[P_K_SPRING], np.arange(4) / p[P_MOCAP_RATE], np.empty(4))
     _warm = True
 
 

@@ -112,7 +112,7 @@ class Rig:
                   "restick_velocity_mm_s": ss["restick_velocity_mm_s"], "step_mm": self.step_mm,
                   "mocap_rate_hz": tm["mocap_rate_hz"], "mocap_noise_mm": p["mocap"]["noise_mm"] if "mocap" in p else 0.0}
         self.mech_params = np.array([float(values[name]) for name in mechanics.PARAMS])
-        mechanics.warm_up(self.mech_params)              # once per process, not in the first period
+        mechanics.warm_up()                              # once per process, not in the first period
         self.k_period = 0
         self.prev_sar = 1.0
         has = scene.has
