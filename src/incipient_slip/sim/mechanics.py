@@ -9,13 +9,14 @@ and `stick_slip`, which re-export the functions below under their documented nam
 
 Bit for bit: the compiled code does the arithmetic of the Python it replaced in the same order,
 with the same C library calls (numba lowers math.exp, log, expm1, log1p and ** to libm, as CPython
-does; cbrt is libm's, declared as an external function: numba has no math.cbrt). Python's min/max (first argument on
-ties) are spelled out, and the stick solve is scipy's `brentq` (scipy/optimize/Zeros/brentq.c,
-scipy >= 1.11) written out here. The creep relaxation `_creep_z` and the no-sample interpolation of the slip rule
-stay numpy calls (numpy's SIMD exp and log1p differ from libm in the last bit), made from the
-compiled code through `numba.objmode`; they run only in slide periods. Tests assert `==` against
-scipy's brentq, against the array form of the slip rule, between `run_series` and `step_period`,
-and against the committed calibration summary (tests/sim/test_mechanics.py).
+does; cbrt is libm's, declared as an external function: numba has no math.cbrt). Python's min/max
+(first argument on ties) are spelled out, and the stick solve is scipy's `brentq`
+(scipy/optimize/Zeros/brentq.c, scipy >= 1.11) written out here. The creep relaxation `_creep_z`
+and the no-sample interpolation of the slip rule stay numpy calls (numpy's SIMD exp and log1p
+differ from libm in the last bit), made from the compiled code through `numba.objmode`; they run
+only in slide periods. Tests assert `==` against scipy's brentq, against the array form of the
+slip rule, between `run_series` and `step_period`, and against the committed calibration summary
+(tests/sim/test_mechanics.py).
 
 All compiled functions live in this one file on purpose: numba's on-disk cache (`cache=True`)
 is invalidated only by a change of the file a function is defined in, not of the files it calls.
@@ -44,7 +45,7 @@ CHECKED = ("y_mm", "anchor_mm", "tangential_force_n", "bulk_mm", "interfacial_mm
 NONFINITE = 10
 _XTOL, _RTOL, _MAXITER = 1e-13, 4 * np.finfo(float).eps, 200    # the stick solve's brentq settings
 
-# --- the rig's constants for the mechanics (Rig.mechanics_params fills them) --------------------
+# --- the rig's constants for the mechanics (Rig.mech_params holds them) -------------------------
 PARAMS = ("newton_per_kpa", "min_contact_force_n", "friction_limit_lag_s", "period_s", "radius_mm",
           "e_star_mpa", "contact_saturation_radius_mm", "mu_series", "mu_period_jitter",
           "bulk_shear_n_per_mm", "bulk_ref_force_n", "bulk_stiffening_exponent", "g_star_int_mpa",

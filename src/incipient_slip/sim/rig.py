@@ -105,12 +105,13 @@ class Rig:
                   "radius_mm": self.radius_mm, "e_star_mpa": self.e_star,
                   "contact_saturation_radius_mm": c["contact_saturation_radius_mm"], "mu_series": self.mu_s,
                   "mu_period_jitter": ss["mu_period_jitter"], "bulk_shear_n_per_mm": ps["bulk_shear_n_per_mm"],
-                  "bulk_ref_force_n": ps["bulk_ref_force_n"], "bulk_stiffening_exponent": ps["bulk_stiffening_exponent"],
-                  "g_star_int_mpa": self.g_star_int, "spring_n_per_mm": self.k,
-                  "rate_strengthening": ss["rate_strengthening"],
+                  "bulk_ref_force_n": ps["bulk_ref_force_n"],
+                  "bulk_stiffening_exponent": ps["bulk_stiffening_exponent"], "g_star_int_mpa": self.g_star_int,
+                  "spring_n_per_mm": self.k, "rate_strengthening": ss["rate_strengthening"],
                   "creep_reference_velocity_mm_s": ss["creep_reference_velocity_mm_s"],
                   "restick_velocity_mm_s": ss["restick_velocity_mm_s"], "step_mm": self.step_mm,
-                  "mocap_rate_hz": tm["mocap_rate_hz"], "mocap_noise_mm": p["mocap"]["noise_mm"] if "mocap" in p else 0.0}
+                  "mocap_rate_hz": tm["mocap_rate_hz"],
+                  "mocap_noise_mm": p["mocap"]["noise_mm"] if "mocap" in p else 0.0}
         self.mech_params = np.array([float(values[name]) for name in mechanics.PARAMS])
         mechanics.warm_up()                              # once per process, not in the first period
         self.k_period = 0
@@ -239,8 +240,7 @@ class Rig:
         `travel_rule` = (span, early, late) in s, that rule's constants) plus normal_force_kpa.
         Stops after the first period whose travel_mm is >= stop_travel_mm (the arrays end there).
         The mocap samples themselves are not returned."""
-        if tuple(e for e in self.scene.effects if e in MECHANICS) != tuple(self.scene.effects) or \
-                set(self.scene.effects) != set(MECHANICS):
+        if set(self.scene.effects) != set(MECHANICS):
             raise ValueError(f"run_mechanics needs a scene with the effects {', '.join(MECHANICS)}; "
                              f"scene {self.scene.name!r} has {', '.join(self.scene.effects)}")
         forces = np.array(normal_force_kpa, dtype=np.float64).reshape(-1)
@@ -262,15 +262,15 @@ class Rig:
                 g.bit_generator.state = st
             streams[0].standard_normal(done)
             streams[1].standard_normal((done, self.n_mocap))
+        self.k_period += done                               # the periods before a failing one count
+        self.last_sar_seen = {}
+        if done:
+            self.prev_sar = float(out[done - 1, mechanics.C_SAR])
         if status >= mechanics.OUTPUT_STATUS:
             name = mechanics.OUTPUT_CHECKED[status - mechanics.OUTPUT_STATUS]
             raise SimulationError(f"step {step}: non-finite {name}")
         if status:
             raise_status(status, step, self.state.friction_force_n, self.mu_s, math.nan, self.state.values)
-        self.k_period += done
-        self.last_sar_seen = {}
-        if done:
-            self.prev_sar = float(out[done - 1, mechanics.C_SAR])
         res = {name: out[:done, i] for i, name in enumerate(mechanics.COLUMNS)}
         res["gross_slip"] = res["gross_slip"] != 0.0
         res["sliding"] = res["sliding"] != 0.0
