@@ -75,6 +75,35 @@ def test_the_contact_formulas_are_cpythons_arithmetic(f, r, e, sat, ref, fref, b
     assert cattaneo_mm(q, mu_fn, dmax) == mechanics.cattaneo_mm.py_func(q, mu_fn, dmax)
 
 
+@settings(max_examples=300, deadline=None)
+@given(f=st.one_of(st.just(0.0), st.floats(0.01, 3.0)), mu=st.floats(0.3, 1.0), dmax=st.floats(0.0, 0.3),
+       k_s=st.floats(0.005, 1.0), k_b=st.floats(0.05, 5.0), b=st.floats(0.005, 0.05), v_ref=st.floats(0.1, 10.0),
+       v_stick=st.floats(0.001, 0.01), u=st.floats(-5.0, 60.0), anchor=st.floats(-5.0, 30.0),
+       y=st.floats(-5.0, 30.0), locked=st.floats(-0.3, 0.3), lag=st.one_of(st.just(0.0), st.floats(0.05, 2.0)),
+       fn=st.sampled_from([0.0, 5e-5, 1.1, 2.94, 5.9]), prev_f=st.floats(0.0, 3.0), draw=st.floats(-3.0, 3.0))
+def test_the_compiled_contact_step_period_and_positions_are_their_python(
+        f, mu, dmax, k_s, k_b, b, v_ref, v_stick, u, anchor, y, locked, lag, fn, prev_f, draw):
+    """The same source run by CPython (py_func; the creep through numpy either way) gives the same
+    state and numbers: stick, gross slip forward and back, slides that end or go on, no contact."""
+    s = mechanics.new_state()
+    s[[mechanics.ACTUATOR, mechanics.ANCHOR, mechanics.Y, mechanics.INTERFACIAL]] = u, anchor, y, locked
+    args = (f, mu, dmax, k_s, k_b, b, v_ref, v_stick, 0.5)
+    a, c = s.copy(), s.copy()
+    assert mechanics.step_contact(a, *args) == mechanics.step_contact.py_func(c, *args)
+    assert np.array_equal(a, c, equal_nan=True)
+    t = np.arange(60) / 120.0
+    ya, yc = np.empty(60), np.empty(60)
+    mechanics.positions(a, k_s, t, ya)
+    mechanics.positions.py_func(c, k_s, t, yc)
+    assert ya.tolist() == yc.tolist()
+    p = np.array([mechanics._WARM_PARAMS[name] for name in mechanics.PARAMS])
+    p[[mechanics.P_LAG, mechanics.P_K_SPRING, mechanics.P_BULK_REF, mechanics.P_RATE_B]] = lag, k_s, k_b, b
+    s[mechanics.F_EFF] = prev_f
+    a, c = s.copy(), s.copy()
+    assert mechanics.period(a, p, fn, draw, True) == mechanics.period.py_func(c, p, fn, draw, True)
+    assert np.array_equal(a, c, equal_nan=True)
+
+
 # --- a series in one call == as many step_period calls ------------------------------------------
 
 def _columns(rig, forces, actuator_step, stop):
