@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import adc, contact, stick_slip
+from . import adc, contact, mechanics, stick_slip
 from .ambient_noise import AmbientNoise
 from .electrodes import Electrodes
 from .feasibility import material_mu
@@ -28,10 +28,11 @@ from .injection import PztSource
 from .mocap import mocap_samples
 from .pdc import pdc_counts
 from .scene import Scene, load_scene  # noqa: F401  (re-exported)
-from .stick_slip import ContactState, SimulationError
+from .stick_slip import ContactState, SimulationError, raise_status
 from .temperature import temperature_counts
 from .vibrotactile import bursts_pa
 
+MECHANICS = ("contact", "stick_slip", "mocap")   # the effects `run_mechanics` computes, all of them
 STREAMS = ("friction", "injection", "vibrotactile", "ambient", "electrodes", "pdc", "temperature", "mocap")
 
 
@@ -98,7 +99,21 @@ class Rig:
         self.k = ss["spring_n_per_mm"]
         self.step_mm = ss["actuator_travel_mm"] / ss["actuator_steps"]
         self.state = ContactState()
-        self.friction_force_n: float | None = None     # the normal force the friction limit follows (lagged)
+        ps = p["pre_slip"]
+        values = {"newton_per_kpa": c["newton_per_kpa"], "min_contact_force_n": c["min_contact_force_n"],
+                  "friction_limit_lag_s": ss["friction_limit_lag_s"], "period_s": self.period_s,
+                  "radius_mm": self.radius_mm, "e_star_mpa": self.e_star,
+                  "contact_saturation_radius_mm": c["contact_saturation_radius_mm"], "mu_series": self.mu_s,
+                  "mu_period_jitter": ss["mu_period_jitter"], "bulk_shear_n_per_mm": ps["bulk_shear_n_per_mm"],
+                  "bulk_ref_force_n": ps["bulk_ref_force_n"],
+                  "bulk_stiffening_exponent": ps["bulk_stiffening_exponent"], "g_star_int_mpa": self.g_star_int,
+                  "spring_n_per_mm": self.k, "rate_strengthening": ss["rate_strengthening"],
+                  "creep_reference_velocity_mm_s": ss["creep_reference_velocity_mm_s"],
+                  "restick_velocity_mm_s": ss["restick_velocity_mm_s"], "step_mm": self.step_mm,
+                  "mocap_rate_hz": tm["mocap_rate_hz"],
+                  "mocap_noise_mm": p["mocap"]["noise_mm"] if "mocap" in p else 0.0}
+        self.mech_params = np.array([float(values[name]) for name in mechanics.PARAMS])
+        mechanics.warm_up()                              # once per process, not in the first period
         self.k_period = 0
         self.prev_sar = 1.0
         has = scene.has
@@ -111,6 +126,12 @@ class Rig:
         self.n_slow_cols = has("electrodes") or has("pdc") or has("temperature")
         self.pzt_on = has("injection")
         self.pzt_db = scene.injection_db
+
+    @property
+    def friction_force_n(self) -> float | None:
+        """The normal force (N) the friction limit follows (F_N lagged), None before the first period."""
+        f = self.state.friction_force_n
+        return None if math.isnan(f) else f
 
     def set_injection(self, on: bool, intensity_db: float | None = None) -> None:
         """Switch the PZT noise on or off and set its intensity I (dB); needs the 'injection' effect."""
@@ -129,40 +150,12 @@ class Rig:
         if not math.isfinite(fn_kpa) or fn_kpa < 0.0:
             raise ValueError(f"step {k_step}: normal_force_kpa must be finite and >= 0, got {normal_force_kpa}")
         p = self.p
-        c = p["contact"]
-        fn_n = fn_kpa * c["newton_per_kpa"]
-        in_contact = fn_n >= c["min_contact_force_n"]
-        out_fn = fn_n if in_contact else 0.0
-        ss = p["stick_slip"]
-        lag = ss["friction_limit_lag_s"]
-        if self.friction_force_n is None or lag <= 0.0 or not in_contact:
-            self.friction_force_n = out_fn
-        else:
-            self.friction_force_n = out_fn + (self.friction_force_n - out_fn) * math.exp(-self.period_s / lag)
-        f_eff = self.friction_force_n
-        a_mm = (contact.contact_radius_mm(f_eff, self.radius_mm, self.e_star, c["contact_saturation_radius_mm"])
-                if in_contact else 0.0)
-        jit = 1.0 + ss["mu_period_jitter"] * self.rng["friction"].standard_normal()
-        mu_s = self.mu_s * jit
-        ps = p["pre_slip"]
-        k_bulk = contact.bulk_shear_stiffness_n_per_mm(ps["bulk_shear_n_per_mm"], out_fn, ps["bulk_ref_force_n"],
-                                                       ps["bulk_stiffening_exponent"], c["min_contact_force_n"])
-        dmax_int = contact.interfacial_max_mm(mu_s * f_eff, self.g_star_int, a_mm)
         st = self.state
-        sar, s_ratio, q, gross, slide_s = 1.0, 1.0, 0.0, False, 0.0
-        if self.scene.has("stick_slip"):
-            stick_slip.step_contact(st, friction_force_n=f_eff if in_contact else 0.0,
-                                    mu_s=mu_s, dmax_int=dmax_int, k_spring=self.k, k_bulk=k_bulk,
-                                    rate_b=ss["rate_strengthening"], v_ref=ss["creep_reference_velocity_mm_s"],
-                                    v_stick=ss["restick_velocity_mm_s"], period_s=self.period_s, step=k_step)
-            slide_s = st.slide_t1_s - st.slide_t0_s
-            gross = slide_s > 0.0
-            q = st.tangential_force_n
-            sar = st.stick_area_ratio
-            if st.sliding or not in_contact:
-                s_ratio = 0.0
-            else:
-                s_ratio = min(1.0, max(0.0, 1.0 - abs(q) / st.friction_limit_n))   # partial_slip.load_ratio_stick
+        status, out_fn, in_contact, a_mm, k_bulk, sar, s_ratio, q, gross, slide_s = mechanics.period(
+            st.values, self.mech_params, fn_kpa, self.rng["friction"].standard_normal(), self.scene.has("stick_slip"))
+        if status:
+            raise_status(status, k_step, self.friction_force_n if in_contact else 0.0,
+                         self.mu_s, k_bulk, st.values)
         slide_t0 = st.slide_t0_s
         t0 = k_step * self.period_s
         shear_strain = st.bulk_mm / p["fingertip_modes"]["pad_thickness_mm"] if "fingertip_modes" in p else 0.0
@@ -233,3 +226,53 @@ class Rig:
         if actuator_step:
             st.actuator_mm += self.step_mm
         return out
+
+    def run_mechanics(self, normal_force_kpa, travel_rule: tuple[float, float, float], actuator_step: bool = True,
+                      stop_travel_mm: float = math.inf) -> dict[str, np.ndarray]:
+        """Run one period per F_N in `normal_force_kpa` in one compiled call and return their truth
+        as arrays: exactly the numbers of as many `step_period` calls (same state afterwards, same
+        random streams), for a scene whose effects are MECHANICS (contact, stick_slip, mocap).
+
+        Keys: `mechanics.COLUMNS` (object_y_mm, tangential_force_n, stick_area_ratio,
+        load_ratio_stick, gross_slip and sliding as bools, slide_q0_n, actuator_mm during the
+        period, friction_force_n after it, and travel_mm: the object's travel within the period
+        on its mocap samples, as `models.labels.gross_slip_travel_mm` reads it, with
+        `travel_rule` = (span, early, late) in s, that rule's constants) plus normal_force_kpa.
+        Stops after the first period whose travel_mm is >= stop_travel_mm (the arrays end there).
+        The mocap samples themselves are not returned."""
+        if set(self.scene.effects) != set(MECHANICS):
+            raise ValueError(f"run_mechanics needs a scene with the effects {', '.join(MECHANICS)}; "
+                             f"scene {self.scene.name!r} has {', '.join(self.scene.effects)}")
+        forces = np.array(normal_force_kpa, dtype=np.float64).reshape(-1)
+        bad = np.flatnonzero(~(np.isfinite(forces) & (forces >= 0.0)))
+        if bad.size:
+            raise ValueError(f"step {self.k_period + int(bad[0])}: normal_force_kpa must be finite and >= 0, "
+                             f"got {forces[bad[0]]}")
+        n = forces.size
+        streams = (self.rng["friction"], self.rng["mocap"])
+        saved = [g.bit_generator.state for g in streams]
+        friction = streams[0].standard_normal(n)            # the draws n step_period calls would make
+        mocap = streams[1].standard_normal((n, self.n_mocap))
+        out = np.empty((n, len(mechanics.COLUMNS)))
+        done, status, step = mechanics.run_series(self.state.values, self.mech_params, self.k_period, forces, friction,
+                                                  mocap, bool(actuator_step), float(stop_travel_mm),
+                                                  np.array(travel_rule, dtype=np.float64), out)
+        if done < n:                                        # stopped early: leave the streams where
+            for g, st in zip(streams, saved):               # `done` step_period calls would
+                g.bit_generator.state = st
+            streams[0].standard_normal(done)
+            streams[1].standard_normal((done, self.n_mocap))
+        self.k_period += done                               # the periods before a failing one count
+        self.last_sar_seen = {}
+        if done:
+            self.prev_sar = float(out[done - 1, mechanics.C_SAR])
+        if status >= mechanics.OUTPUT_STATUS:
+            name = mechanics.OUTPUT_CHECKED[status - mechanics.OUTPUT_STATUS]
+            raise SimulationError(f"step {step}: non-finite {name}")
+        if status:
+            raise_status(status, step, self.state.friction_force_n, self.mu_s, math.nan, self.state.values)
+        res = {name: out[:done, i] for i, name in enumerate(mechanics.COLUMNS)}
+        res["gross_slip"] = res["gross_slip"] != 0.0
+        res["sliding"] = res["sliding"] != 0.0
+        res["normal_force_kpa"] = forces[:done]
+        return res
