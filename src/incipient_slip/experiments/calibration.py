@@ -698,15 +698,24 @@ ELECTRODE_GRID = {"core_stiction_ratio": (0.0, 0.1, 0.2), "contact_offset_counts
                   "drift_counts": (1.0, 3.0, 5.0)}
 
 
-def _study(scene: Scene, scene_name: str, methods, n_series: int, seed: int, work: Path, progress: bool) -> dict:
-    """Return {method: per-method scores} of a quick estimation study on freshly simulated data."""
-    from incipient_slip.models.pipeline import run_study
+def _simulate(sets: dict, n_series: int, seed: int, work: Path, progress: bool) -> None:
+    """Simulate the data sets {name: scene} into WORK/name, in one pass: the first scene's runs
+    give the others' series exactly (`sim.dataset.view_kind`: the same parameters, fewer effects)."""
     from incipient_slip.sim.dataset import write_dataset
 
+    (name, scene), *views = sets.items()
+    for n in sets:
+        for stale in (Path(work) / n).glob("series_*.npz"):
+            stale.unlink()
+    write_dataset(scene, n_series, seed, Path(work) / name, workers=1, progress=progress,
+                  views={Path(work) / n: sc for n, sc in views})
+
+
+def _study(scene_name: str, methods, work: Path) -> dict:
+    """Return {method: per-method scores} of a quick estimation study on the data set WORK/scene_name."""
+    from incipient_slip.models.pipeline import run_study
+
     d = Path(work) / scene_name
-    for stale in d.glob("series_*.npz"):
-        stale.unlink()
-    write_dataset(scene, n_series, seed, d, workers=1, progress=progress)
     dirs = {"paper": d, "no_injection": d}
     study = run_study(dirs, methods=methods, quick=True, max_train=2000, grid_max=600, progress=False)
     out = {}
@@ -748,9 +757,10 @@ def fit_electrodes(scene: Scene, n_series: int, seed: int, work: Path, progress:
     """Return the electrode nuisance amplitudes from the documented grid (T6 items b and d decide;
     ties go to the smaller amplitudes), the estimation scores at them and the grid's rows."""
     from incipient_slip.sim.scene import load_scene
-    vib = _study(scene, "paper", ("injection",), n_series, seed, work, progress)
-    vt = _study(dataclasses.replace(load_scene("no_injection"), params=scene.params), "no_injection",
-                ("vibrotactile",), n_series, seed, work, progress)
+    _simulate({"paper": scene, "no_injection": dataclasses.replace(load_scene("no_injection"), params=scene.params)},
+              n_series, seed, work, progress)
+    vib = _study("paper", ("injection",), work)
+    vt = _study("no_injection", ("vibrotactile",), work)
     rows, best = [], None
     eo = load_scene("electrodes_only")
     names = list(ELECTRODE_GRID)
@@ -758,7 +768,8 @@ def fit_electrodes(scene: Scene, n_series: int, seed: int, work: Path, progress:
         values = dict(zip(names, point))
         sc = with_values(dataclasses.replace(eo, params=scene.params),
                          {("electrodes", k): v for k, v in values.items()})
-        el = _study(sc, "electrodes", ELECTRODE_METHODS, n_series, seed, work, progress)
+        _simulate({"electrodes": sc}, n_series, seed, work, progress)
+        el = _study("electrodes", ELECTRODE_METHODS, work)
         scores = {**vib, **vt, **el}
         items = pattern_items(scores)
         j = pattern_objective(items)
@@ -776,11 +787,12 @@ def fit_electrodes(scene: Scene, n_series: int, seed: int, work: Path, progress:
 def check_pattern(scene: Scene, n_series: int, seed: int, work: Path, progress: bool) -> dict:
     """Return T6 at the params file's electrode amplitudes (one study per scene, no grid)."""
     from incipient_slip.sim.scene import load_scene
-    vib = _study(scene, "paper", ("injection",), n_series, seed, work, progress)
-    vt = _study(dataclasses.replace(load_scene("no_injection"), params=scene.params), "no_injection",
-                ("vibrotactile",), n_series, seed, work, progress)
-    el = _study(dataclasses.replace(load_scene("electrodes_only"), params=scene.params), "electrodes",
-                ELECTRODE_METHODS, n_series, seed, work, progress)
+    at = {n: dataclasses.replace(load_scene(n), params=scene.params) for n in ("no_injection", "electrodes_only")}
+    _simulate({"paper": scene, "no_injection": at["no_injection"], "electrodes": at["electrodes_only"]},
+              n_series, seed, work, progress)
+    vib = _study("paper", ("injection",), work)
+    vt = _study("no_injection", ("vibrotactile",), work)
+    el = _study("electrodes", ELECTRODE_METHODS, work)
     scores = {**vib, **vt, **el}
     items = pattern_items(scores)
     return {**{k: scene.params["electrodes"][k] for k in ELECTRODE_GRID}, "objective": pattern_objective(items),

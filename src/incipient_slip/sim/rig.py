@@ -27,6 +27,7 @@ from .fingertip_modes import ModalPath
 from .injection import PztSource
 from .mocap import mocap_samples
 from .pdc import pdc_counts
+from .sos import SosFilter
 from .scene import Scene, load_scene  # noqa: F401  (re-exported)
 from .stick_slip import ContactState, SimulationError, raise_status
 from .temperature import temperature_counts
@@ -72,7 +73,10 @@ def series_seed(dataset_seed: int, series_index: int) -> int:
 class Rig:
     """A simulated rig for one material and seed; `step_period` advances one sampling period."""
 
-    def __init__(self, scene: Scene, material: str, seed: int):
+    def __init__(self, scene: Scene, material: str, seed: int, pac_without_pzt: bool = False):
+        """pac_without_pzt: also compute, each period, the P_AC the same period would have had
+        with the PZT absent (the no-injection scene's, exactly: same draws, its own modal filter
+        state) into `last_pac_without_pzt`, so one run gives both scenes' data (`sim.dataset`)."""
         if material not in scene.params["materials"]:
             raise ValueError(f"unknown material {material!r} (known: {', '.join(scene.params['materials'])})")
         self.scene, self.material, self.seed = scene, material, int(seed)
@@ -126,6 +130,12 @@ class Rig:
         self.n_slow_cols = has("electrodes") or has("pdc") or has("temperature")
         self.pzt_on = has("injection")
         self.pzt_db = scene.injection_db
+        if pac_without_pzt and not self.has_pac:
+            raise ValueError(f"scene {scene.name!r} has no P_AC effect; pac_without_pzt needs one")
+        self.filter_without_pzt = (SosFilter(np.zeros((len(p["fingertip_modes"]["freq_hz"]), 6)))
+                                   if pac_without_pzt and self.modes is not None else None)
+        self.pac_without_pzt = pac_without_pzt
+        self.last_pac_without_pzt: np.ndarray | None = None
 
     @property
     def friction_force_n(self) -> float | None:
@@ -165,25 +175,38 @@ class Rig:
         if self.has_pac:
             n = self.n_pac
             x = np.zeros(n)
+            # the PZT-absent twin (pac_without_pzt): the same sums in the same order, minus the PZT term
+            off = np.zeros(n) if self.pac_without_pzt else None
             if self.band is not None:
                 unit = self.band.next(self.rng["injection"])       # drawn even when off: streams stay aligned
                 if self.pzt_on:
                     x += unit * (p["injection"]["pa_per_unit"] * 10.0 ** (self.pzt_db / 20.0))
             if self.scene.has("vibrotactile"):
-                x += bursts_pa(self.rng["vibrotactile"], n, self.fs, p["vibrotactile"], self.prev_sar - sar,
-                               slide_s, slide_t0, self.roughness, p["injection"]["pa_per_unit"])
+                bursts = bursts_pa(self.rng["vibrotactile"], n, self.fs, p["vibrotactile"], self.prev_sar - sar,
+                                   slide_s, slide_t0, self.roughness, p["injection"]["pa_per_unit"])
+                x += bursts
+                if off is not None:
+                    off += bursts
             if self.modes is not None:
                 n_split = min(n, int(math.ceil((slide_t0 + slide_s) * self.fs))) if gross else 0
-                if n_split:
-                    self.modes(x[:n_split], a_mm, 0.0, shear_strain, self.material_damping)
-                if n_split < n:
-                    self.modes(x[n_split:], a_mm, sar, shear_strain, self.material_damping)
+                for part, s_part in ((slice(0, n_split), 0.0), (slice(n_split, n), sar)):
+                    if part.stop > part.start:
+                        self.modes(x[part], a_mm, s_part, shear_strain, self.material_damping)
+                        if off is not None:                # the same coefficients, the twin's own state
+                            self.filter_without_pzt.filter_inplace(off[part], self.modes.filter.sos)
                 self.last_sar_seen["modes"] = self.modes.last_state[1]
             if self.ambient is not None:
-                x += self.ambient.next(self.rng["ambient"])
-            if not np.all(np.isfinite(x)):
-                raise SimulationError(f"step {k_step}: non-finite P_AC (F_N={fn_kpa} kPa, s={s_ratio})")
+                hum = self.ambient.next(self.rng["ambient"])
+                x += hum
+                if off is not None:
+                    off += hum
+            for buf in (x,) if off is None else (x, off):
+                if not np.all(np.isfinite(buf)):
+                    raise SimulationError(f"step {k_step}: non-finite P_AC (F_N={fn_kpa} kPa, s={s_ratio})")
             pac = adc.pac_to_counts(x, p["adc"]["pac_pa_per_count"], p["adc"]["pac_range_pa"])
+            if off is not None:
+                self.last_pac_without_pzt = adc.pac_to_counts(off, p["adc"]["pac_pa_per_count"],
+                                                              p["adc"]["pac_range_pa"])
         # slow channels share one 12-bit conversion: columns E1..E19, P_DC, T_AC, T_DC
         elec = pdc = tac = tdc = None
         if self.n_slow_cols:
