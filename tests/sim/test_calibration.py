@@ -112,3 +112,11 @@ def test_estimation_pattern_items_follow_the_preregistered_rules():
     scores["e19"] = {**base, "rmse_s_above_0.7": 0.1}          # electrodes best near full stick: (d) fails
     items = cal.pattern_items(scores)
     assert not items["d"][0] and cal.pattern_objective(items) == 0.5
+
+
+def test_beta_interval_on_two_processes_gives_the_rows_of_one():
+    from incipient_slip.sim.scene import load_scene
+    args = (load_scene("paper"), 6, 1, 3)
+    one = cal.beta_interval(*args, grid=(0.75, 1.25), maxfev=3, progress=False)
+    two = cal.beta_interval(*args, grid=(0.75, 1.25), maxfev=3, progress=False, workers=2)
+    assert [r["beta"] for r in one] == [0.75, 1.25] and one == two

@@ -382,21 +382,35 @@ def fit_mechanics(scene: Scene, n_series: int, runs: int, seed: int, maxfev: int
             "objective": mechanics_objective(summ), "evaluations": len(trace), "trace": trace, "chosen": chosen}
 
 
+def _beta_row(scene: Scene, b: float, n_series: int, runs: int, seed: int, maxfev: int) -> dict:
+    sc = with_values(scene, {FITTED[2]: float(b)})
+    fit = fit_mechanics(sc, n_series, runs, seed, maxfev, progress=False, stiffness_only=True)
+    s = fit["summary"]
+    return {"beta": float(b), "k_b": fit["values"]["pre_slip.bulk_shear_n_per_mm"],
+            "k_s": fit["values"]["stick_slip.spring_n_per_mm"], "J": fit["objective"],
+            "T7": s["T7"], "consistent": consistent_with_open_loop(s)}
+
+
 def beta_interval(scene: Scene, n_series: int, runs: int, seed: int, grid=(0.5, 0.75, 1.0, 1.25),
-                  maxfev: int = 25, progress: bool = True) -> list[dict]:
+                  maxfev: int = 25, progress: bool = True, workers: int = 1) -> list[dict]:
     """Return, per beta on `grid`, the refit of k_b and k_s and whether T1-T4' and T7 can be met:
-    the interval of beta that the open-loop targets allow."""
+    the interval of beta that the open-loop targets allow. The refits are independent (common
+    random numbers): `workers` forked processes run them, with the same rows as in process."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    args = [(scene, b, n_series, runs, seed, maxfev) for b in grid]
+    pool = ProcessPoolExecutor(min(workers, len(grid)), mp_context=mp.get_context("fork")) if workers > 1 else None
     rows = []
-    for b in grid:
-        sc = with_values(scene, {FITTED[2]: float(b)})
-        fit = fit_mechanics(sc, n_series, runs, seed, maxfev, progress=False, stiffness_only=True)
-        s = fit["summary"]
-        rows.append({"beta": float(b), "k_b": fit["values"]["pre_slip.bulk_shear_n_per_mm"],
-                     "k_s": fit["values"]["stick_slip.spring_n_per_mm"], "J": fit["objective"],
-                     "T7": s["T7"], "consistent": consistent_with_open_loop(s)})
-        if progress:
-            print(f"  beta {b:g}: J {fit['objective']:.2f}, T7 " + "/".join(f"{v:.2f}" for v in s["T7"].values())
-                  + (" (consistent)" if rows[-1]["consistent"] else ""), flush=True)
+    try:
+        for row in (pool.map(_beta_row, *zip(*args)) if pool else (_beta_row(*a) for a in args)):
+            rows.append(row)
+            if progress:
+                print(f"  beta {row['beta']:g}: J {row['J']:.2f}, T7 " + "/".join(f"{v:.2f}" for v in row["T7"].values())
+                      + (" (consistent)" if row["consistent"] else ""), flush=True)
+    finally:
+        if pool:
+            pool.shutdown()
     return rows
 
 
@@ -595,7 +609,7 @@ def run(settings) -> dict:
         if settings.progress:
             print("stage 1b (the interval of beta that T1-T4' and T7 allow; k_b and k_s refitted per beta)", flush=True)
         betas = beta_interval(scene, max(20, n_series // 2), max(1, runs // 2), settings.seed,
-                              maxfev=settings.pick(8, 15), progress=settings.progress)
+                              maxfev=settings.pick(8, 15), progress=settings.progress, workers=settings.jobs)
     fn = fit_fn_channel(scene, settings.seed)
     scene = with_values(scene, {("fingertip_modes", "fn_channel_gain"): fn["value"]})
     if settings.progress:
@@ -609,9 +623,8 @@ def run(settings) -> dict:
         if settings.progress:
             print(f"stage 2 (estimation pattern T6): electrode grid {ELECTRODE_GRID}, {n_est} series per data set",
                   flush=True)
-        el = (fit_electrodes(scene, n_est, settings.seed + 11, Path(settings.work) / "data", settings.progress)
-              if opt("electrode_grid", False) else
-              check_pattern(scene, n_est, settings.seed + 11, Path(settings.work) / "data", settings.progress))
+        el = (fit_electrodes if opt("electrode_grid", False) else check_pattern)(
+            scene, n_est, settings.seed + 11, Path(settings.work) / "data", settings.progress, settings.jobs)
         items = el["items"]
         rows.append({"id": "T6", "paper": "pattern (a)-(e)", "sim": "; ".join(
             f"({k}) {'pass' if ok else 'FAIL'}: {detail}" for k, (ok, detail) in items.items()),
@@ -698,7 +711,7 @@ ELECTRODE_GRID = {"core_stiction_ratio": (0.0, 0.1, 0.2), "contact_offset_counts
                   "drift_counts": (1.0, 3.0, 5.0)}
 
 
-def _simulate(sets: dict, n_series: int, seed: int, work: Path, progress: bool) -> None:
+def _simulate(sets: dict, n_series: int, seed: int, work: Path, progress: bool, workers: int = 1) -> None:
     """Simulate the data sets {name: scene} into WORK/name, in one pass: the first scene's runs
     give the others' series exactly (`sim.dataset.view_kind`: the same parameters, fewer effects)."""
     from incipient_slip.sim.dataset import write_dataset
@@ -707,7 +720,7 @@ def _simulate(sets: dict, n_series: int, seed: int, work: Path, progress: bool) 
     for n in sets:
         for stale in (Path(work) / n).glob("series_*.npz"):
             stale.unlink()
-    write_dataset(scene, n_series, seed, Path(work) / name, workers=1, progress=progress,
+    write_dataset(scene, n_series, seed, Path(work) / name, workers=workers, progress=progress,
                   views={Path(work) / n: sc for n, sc in views})
 
 
@@ -753,12 +766,12 @@ def pattern_objective(items: dict) -> float:
     return 0.5 * sum(not ok for ok, _ in items.values())
 
 
-def fit_electrodes(scene: Scene, n_series: int, seed: int, work: Path, progress: bool) -> dict:
+def fit_electrodes(scene: Scene, n_series: int, seed: int, work: Path, progress: bool, workers: int = 1) -> dict:
     """Return the electrode nuisance amplitudes from the documented grid (T6 items b and d decide;
     ties go to the smaller amplitudes), the estimation scores at them and the grid's rows."""
     from incipient_slip.sim.scene import load_scene
     _simulate({"paper": scene, "no_injection": dataclasses.replace(load_scene("no_injection"), params=scene.params)},
-              n_series, seed, work, progress)
+              n_series, seed, work, progress, workers)
     vib = _study("paper", ("injection",), work)
     vt = _study("no_injection", ("vibrotactile",), work)
     rows, best = [], None
@@ -768,7 +781,7 @@ def fit_electrodes(scene: Scene, n_series: int, seed: int, work: Path, progress:
         values = dict(zip(names, point))
         sc = with_values(dataclasses.replace(eo, params=scene.params),
                          {("electrodes", k): v for k, v in values.items()})
-        _simulate({"electrodes": sc}, n_series, seed, work, progress)
+        _simulate({"electrodes": sc}, n_series, seed, work, progress, workers)
         el = _study("electrodes", ELECTRODE_METHODS, work)
         scores = {**vib, **vt, **el}
         items = pattern_items(scores)
@@ -784,12 +797,12 @@ def fit_electrodes(scene: Scene, n_series: int, seed: int, work: Path, progress:
             "scores": scores, "items": {k: [bool(v[0]), v[1]] for k, v in items.items()}}
 
 
-def check_pattern(scene: Scene, n_series: int, seed: int, work: Path, progress: bool) -> dict:
+def check_pattern(scene: Scene, n_series: int, seed: int, work: Path, progress: bool, workers: int = 1) -> dict:
     """Return T6 at the params file's electrode amplitudes (one study per scene, no grid)."""
     from incipient_slip.sim.scene import load_scene
     at = {n: dataclasses.replace(load_scene(n), params=scene.params) for n in ("no_injection", "electrodes_only")}
     _simulate({"paper": scene, "no_injection": at["no_injection"], "electrodes": at["electrodes_only"]},
-              n_series, seed, work, progress)
+              n_series, seed, work, progress, workers)
     vib = _study("paper", ("injection",), work)
     vt = _study("no_injection", ("vibrotactile",), work)
     el = _study("electrodes", ELECTRODE_METHODS, work)
