@@ -106,3 +106,32 @@ def test_joint_set_runs_the_table_only_where_the_open_loop_refit_allows(tmp_path
     block = val.render(res)["validation-joint"]
     assert "2 points, 1 consistent" in block and "Simulated rig" in block
     assert block.count("| beta 0.5, lag 0, mu spread 1 |") == 2 and block.count("| beta 0.5, lag 0.5, mu spread 1 |") == 1
+
+
+@pytest.mark.parametrize("with_docs", [True, False])
+def test_a_run_into_the_docs_without_joint_keeps_the_committed_joint_set(tmp_path, with_docs):
+    """`slip reproduce validation` (and `all`) without --joint wrote a page without the joint set
+    the committed page had (its hours of refits lost); into the docs it now keeps what it does not
+    rerun, as --keep does. Without docs (a preview, --out) nothing is kept."""
+    import json
+    import shutil
+    from dask.distributed import LocalCluster
+    from incipient_slip.experiments.settings import Settings
+    from incipient_slip.paths import docs_dir
+
+    docs = tmp_path / "docs"
+    (docs / "figures").mkdir(parents=True)
+    shutil.copy(docs_dir() / "figures" / val.RESULTS, docs / "figures" / val.RESULTS)
+    committed = json.loads((docs / "figures" / val.RESULTS).read_text())
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster:
+        opts = {"points": ["fitted"], "runs": 1, "series": 6, "steps": 3, "refits": ((4, 1, 1),),
+                "scheduler": cluster.scheduler_address}
+        res = val.run(Settings(budget="quick", work=tmp_path / "work", docs=docs if with_docs else None,
+                               progress=False, options=opts))
+    if with_docs:
+        assert res["joint"] == committed["joint"] and res["joint_figure"] == committed["joint_figure"]
+        assert set(res["points"]) == set(committed["points"])           # the others kept as committed
+        assert res["points"]["beta 0.75"] == committed["points"]["beta 0.75"]
+        assert res["points"]["fitted"]["runs"] != committed["points"]["fitted"]["runs"]   # rerun (3 steps)
+    else:
+        assert "joint" not in res and list(res["points"]) == ["fitted"]

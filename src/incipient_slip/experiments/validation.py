@@ -318,6 +318,15 @@ def run(settings) -> dict:
             raise UsageError(f"{label} must be >= 1, got {v}")
     scheduler = check_scheduler(opt("scheduler"))
     keep = opt("keep")
+    if keep is None and not joint and settings.docs is not None and not opt("params"):
+        # the page's joint set (hours of refits before issue 22) is not rerun without --joint:
+        # keep it as committed instead of dropping it from the page
+        committed = settings.results_file(RESULTS)
+        if committed.is_file():
+            keep = committed
+            if settings.progress:
+                print(f"keeping the joint set and any point not run from {committed} (--joint reruns it)",
+                      flush=True)
     old = {}
     if keep:
         import json
