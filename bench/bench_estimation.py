@@ -102,6 +102,8 @@ def _same(piece: str, a: dict, b: dict) -> bool:
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--against", default="main", metavar="REV", help="the revision to compare with (default main)")
+    p.add_argument("--this", metavar="REV", help="time this revision instead of the working tree (so that "
+                   "editing the tree during a run does not mix the variants)")
     p.add_argument("--data", type=Path, metavar="DIR", help="directory of the study's data sets (default: "
                    "simulate --series series per scene)")
     p.add_argument("--series", type=int, default=20)
@@ -113,16 +115,21 @@ def main() -> int:
     root = Path(__file__).resolve().parents[1]
     tmp = Path(tempfile.mkdtemp(prefix="bench_estimation_"))
     try:
-        tar = subprocess.run(["git", "-C", str(root), "archive", a.against, "src", "scenes", "pyproject.toml"],
-                             capture_output=True, check=False)
-        if tar.returncode:
-            print(f"bench_estimation: error: git archive {a.against}: {tar.stderr.decode().strip()}", file=sys.stderr)
-            return 2
-        (tmp / "rev.tar").write_bytes(tar.stdout)
-        with tarfile.open(tmp / "rev.tar") as t:
-            t.extractall(tmp / "rev", filter="data")
+        trees = {}
+        for tag, rev in (("rev", a.against), ("this", a.this)):
+            if rev is None:
+                continue
+            tar = subprocess.run(["git", "-C", str(root), "archive", rev, "src", "scenes", "pyproject.toml"],
+                                 capture_output=True, check=False)
+            if tar.returncode:
+                print(f"bench_estimation: error: git archive {rev}: {tar.stderr.decode().strip()}", file=sys.stderr)
+                return 2
+            (tmp / f"{tag}.tar").write_bytes(tar.stdout)
+            with tarfile.open(tmp / f"{tag}.tar") as t:
+                t.extractall(tmp / tag, filter="data")
+            trees[tag] = ({"PYTHONPATH": str(tmp / tag / "src")}, tmp / tag)
         dirs = _data(a, tmp)
-        variants = {"this": ({}, root), a.against: ({"PYTHONPATH": str(tmp / "rev" / "src")}, tmp / "rev")}
+        variants = {"this": trees.get("this", ({}, root)), a.against: trees["rev"]}
         jobs = [int(j) for j in a.jobs.split(",")]
         print(f"estimation pieces, this checkout vs {a.against}: data {dirs}, {os.cpu_count()} cores, "
               f"jobs {jobs}, {a.repeats} repeats alternating; load average {os.getloadavg()[0]:.1f}", flush=True)
