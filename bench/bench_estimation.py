@@ -72,12 +72,18 @@ np.savez(out, X=train.X[g].astype(np.float64), y=train.y[g], g=train.series[g])
 
 
 def _run(code: str, args: list, env: dict, cwd: Path) -> dict:
+    """Return the piece's JSON line, with "cpu_s": the CPU time of its process tree (pool workers too)."""
+    import resource
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     o = subprocess.run([sys.executable, "-c", code, *map(str, args)], capture_output=True, text=True,
                        env=dict(os.environ, **env), cwd=cwd, check=False)
     if o.returncode:
         raise SystemExit(f"bench_estimation: error: {o.stderr.strip().splitlines()[-3:]}")
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     lines = o.stdout.strip().splitlines()
-    return json.loads(lines[-1]) if lines else {}
+    out = json.loads(lines[-1]) if lines else {}
+    out["cpu_s"] = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+    return out
 
 
 def _data(args, tmp: Path) -> dict:
@@ -141,6 +147,7 @@ def main() -> int:
                 _run(_GRID_INPUT, [json.dumps(dirs), method, arg], {}, root)
             for j in jobs:
                 times: dict = {tag: [] for tag in variants}
+                cpu: dict = {tag: [] for tag in variants}
                 loads, first = [], None
                 for rep in range(a.repeats):
                     order = list(variants) if rep % 2 == 0 else list(variants)[::-1]
@@ -150,18 +157,22 @@ def main() -> int:
                         got = _run(_PIECE, [kind, json.dumps(dirs), j, arg], env, cwd)
                         loads.append((load0, os.getloadavg()[0]))
                         times[tag].append(got["seconds"])
+                        cpu[tag].append(got["cpu_s"])
                         first = first or got
                         if not _same(kind, got, first):
                             print(f"bench_estimation: error: {piece} differs between the variants", file=sys.stderr)
                             return 1
-                        print(f"  {piece} jobs {j} {tag}: {got['seconds']:.1f} s (load {load0:.1f} -> "
+                        print(f"  {piece} jobs {j} {tag}: {got['seconds']:.1f} s, CPU {got['cpu_s']:.1f} s "
+                              f"(interpreter included; load {load0:.1f} -> "
                               f"{os.getloadavg()[0]:.1f})", flush=True)
                 med = {tag: statistics.median(v) for tag, v in times.items()}
                 spread = {tag: f"{min(v):.1f}..{max(v):.1f}" for tag, v in times.items()}
                 lo, hi = min(x for x, _ in loads), max(y for _, y in loads)
                 print(f"{piece} jobs {j}: this {med['this']:.1f} s ({spread['this']}), {a.against} "
                       f"{med[a.against]:.1f} s ({spread[a.against]}), this / {a.against} "
-                      f"{med['this'] / med[a.against]:.2f}; same result; load {lo:.1f}-{hi:.1f}", flush=True)
+                      f"{med['this'] / med[a.against]:.2f}; CPU this {statistics.median(cpu['this']):.1f} s, "
+                      f"{a.against} {statistics.median(cpu[a.against]):.1f} s; same result; load {lo:.1f}-{hi:.1f}",
+                      flush=True)
         return 0
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
