@@ -15,7 +15,8 @@ from . import dataset as ds
 from .evaluation import SeriesScores, paired_tests, series_scores
 from .features import METHODS, feature_spec
 from .modelfile import Model
-from .training import WindowSet, held_out_series, load_window_sets, split_train_test, train_model
+from .training import (WindowSet, forked_map, held_out_series, load_window_sets, split_train_test,
+                       train_model)
 
 SCENE_OF_METHOD = {m: ("no_injection" if m == "vibrotactile" else "paper") for m in METHODS}
 
@@ -75,29 +76,11 @@ def _train_and_predict(train: WindowSet, test: WindowSet, kw: dict):
     return tr, tr.model.predict(test.X)
 
 
-_SPLITS: tuple = ()      # ({method: (train, test)}, train_model options) a forked pool's workers inherit
-
-
-def _pool_task(method: str):
+def _pool_task(shared: tuple, method: str):
     from .estimator_core import limit_blas_threads
-    splits, kw = _SPLITS
+    splits, kw = shared
     with limit_blas_threads(1):          # one core per worker
         return method, _train_and_predict(*splits[method], dict(kw, progress=False))
-
-
-def _pool_train(splits: dict, kw: dict, workers: int, progress: bool) -> dict:
-    """Return {method: (TrainResult, test predictions)}, the methods trained in `workers` forked
-    processes (their windows inherited, not sent), each grid search in its process."""
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
-    global _SPLITS
-    _SPLITS = (splits, kw)
-    try:
-        with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as pool:
-            return dict(tqdm(pool.map(_pool_task, list(splits)), total=len(splits), desc="train",
-                             disable=not progress, leave=False))
-    finally:
-        _SPLITS = ()
 
 
 def run_study(data_dirs: dict, methods=METHODS, kind: str = "svr", quick: bool = False,
@@ -134,7 +117,9 @@ def run_study(data_dirs: dict, methods=METHODS, kind: str = "svr", quick: bool =
     splits = {m: split_train_test(windows[m], test_series) for m in methods}
     kw = dict(kind=kind, max_train=max_train, grid_max=grid_max, quick=quick)
     if client is None and workers > 1 and len(methods) > 1:
-        trained = _pool_train(splits, kw, workers, progress)
+        # the methods on `workers` forked processes (windows inherited), each grid in its process
+        trained = dict(tqdm(forked_map(_pool_task, list(splits), workers, (splits, kw)), total=len(splits),
+                            desc="train", disable=not progress, leave=False))
     else:
         trained = {m: _train_and_predict(*splits[m], dict(kw, progress=progress, client=client, workers=workers))
                    for m in tqdm(methods, desc="train", disable=not progress, leave=False)}

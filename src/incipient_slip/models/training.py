@@ -68,6 +68,32 @@ class WindowSet:
 
 AFTER_SLIP = ("zero", "drop")
 
+_INHERITED: object = None   # what forked_map's workers inherit instead of receiving it pickled
+
+
+def _inherited_call(task):
+    fn, item = task
+    return fn(_INHERITED, item)
+
+
+def forked_map(fn, items, workers: int, inherited=None, chunksize: int = 1):
+    """Yield fn(inherited, item) for each item, in order, from `workers` forked processes (in this
+    process when workers <= 1). `inherited` (windows, arrays) is copied into the workers by the
+    fork, not pickled per task; fn must be a module-level function."""
+    global _INHERITED
+    if workers <= 1:
+        for item in items:
+            yield fn(inherited, item)
+        return
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+    _INHERITED = inherited
+    try:
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as pool:
+            yield from pool.map(_inherited_call, [(fn, item) for item in items], chunksize=chunksize)
+    finally:
+        _INHERITED = None
+
 
 def load_windows(data_dir: str | Path, spec: FeatureSpec, min_window_s: float | None = None,
                  progress: bool = True, after_slip: str = "zero", label: str = "pseudo",
@@ -119,9 +145,11 @@ def load_window_sets(data_dir: str | Path, specs, min_window_s: float | None = N
             for i, spec in enumerate(specs)]
 
 
-def _series_windows(path, specs, min_window_s, after_slip: str, label: str) -> tuple:
+def _series_windows(options: tuple, path) -> tuple:
     """Return (series index, None) for a series without gross slip, else (series index, one
-    tuple of columns per spec, None where the spec keeps no window of it)."""
+    tuple of columns per spec, None where the spec keeps no window of it); options: (specs,
+    min_window_s, after_slip, label)."""
+    specs, min_window_s, after_slip, label = options
     s = ds.load_series(path)
     lab = label_series(s)
     if lab.gross_slip_index < 0:
@@ -148,23 +176,13 @@ def _series_windows(path, specs, min_window_s, after_slip: str, label: str) -> t
 
 def _load_window_sets(data_dir, specs, min_window_s, progress: bool, after_slip: str, label: str,
                       workers: int) -> list[WindowSet]:
-    from functools import partial
     paths = ds.series_paths(data_dir)
-    one = partial(_series_windows, specs=specs, min_window_s=min_window_s, after_slip=after_slip, label=label)
     desc = f"phi {'+'.join(s.method for s in specs)} {Path(data_dir).name}"
     per_series = []
     with tqdm(total=len(paths), desc=desc, unit="series", disable=not progress, leave=False) as bar:
-        if workers > 1:
-            import multiprocessing as mp
-            from concurrent.futures import ProcessPoolExecutor
-            with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as pool:
-                for r in pool.map(one, paths, chunksize=8):
-                    per_series.append(r)
-                    bar.update()
-        else:
-            for p in paths:
-                per_series.append(one(p))
-                bar.update()
+        for r in forked_map(_series_windows, paths, workers, (specs, min_window_s, after_slip, label), chunksize=8):
+            per_series.append(r)
+            bar.update()
     skipped = [index for index, parts in per_series if parts is None]
     data_hash = ds.dataset_hash(data_dir)
     out = []
@@ -312,30 +330,10 @@ def grid_tasks(grid: list[dict], n_folds: int) -> list[tuple[int, list[int]]]:
     return single + shared
 
 
-_SHARED: tuple = ()      # (Z, y, their cache key, grid, folds) of the grid search a forked pool's workers inherit
-
-
-def _shared_group_mse(task) -> list[float]:
+def _task_mse(shared: tuple, task) -> list[float]:
+    Z, y, zy_key, grid, folds = shared
     j, idx = task
-    Z, y, zy_key, grid, folds = _SHARED
     return _group_mse(Z, y, *folds[j], [grid[i] for i in idx], zy_key)
-
-
-def _pool_mse(shared: tuple, tasks, workers: int, bar) -> list[list[float]]:
-    """Return the MSEs of `tasks` from `workers` forked processes (Z and y inherited, not sent)."""
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
-    global _SHARED
-    _SHARED = shared
-    try:
-        with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as pool:
-            out = []
-            for v in pool.map(_shared_group_mse, tasks):
-                out.append(v)
-                bar.update(len(v))
-            return out
-    finally:
-        _SHARED = ()
 
 
 def grid_search_svr(X, y, groups, grid, n_folds=3, progress=True, desc="grid", client=None, workers: int = 1):
@@ -357,13 +355,11 @@ def grid_search_svr(X, y, groups, grid, n_folds=3, progress=True, desc="grid", c
             Zf, yf = client.scatter([Z, y])
             mse = map_tasks(client, _group_mse, [(Zf, yf, *folds[j], [grid[i] for i in idx]) for j, idx in tasks],
                             desc=desc, progress=progress, key="svr-fit", leave=False)
-        elif workers > 1:
-            mse = _pool_mse((Z, y, zy_key, grid, folds), tasks, workers, bar)
         else:
             mse = []
-            for j, idx in tasks:
-                mse.append(_group_mse(Z, y, *folds[j], [grid[i] for i in idx], zy_key))
-                bar.update(len(idx))
+            for v in forked_map(_task_mse, tasks, workers, (Z, y, zy_key, grid, folds)):
+                mse.append(v)
+                bar.update(len(v))
     per_cell = {(i, j): v for (j, idx), values in zip(tasks, mse) for i, v in zip(idx, values)}
     rows = [{"params": params, "rmse": float(np.sqrt(np.mean([per_cell[i, j] for j in range(len(folds))])))}
             for i, params in enumerate(grid)]
