@@ -96,9 +96,11 @@ bench-estimator: $(STAMP)
 bench-loop: $(STAMP)
 	$(BIN)/python bench/bench_loop.py
 
-# the same with the viewer bridge and a Foxglove client that never reads (docs/performance.md, "Live view")
+# bench-loop with and without the viewer bridge and a Foxglove client that never reads, alternated
+# ROUNDS times; prints the p99 ratio (docs/performance.md, "Live view")
+ROUNDS ?= 5
 bench-loop-viewer: $(STAMP)
-	$(BIN)/python bench/bench_loop.py --viewer stalled
+	$(BIN)/python bench/bench_loop_viewer.py --rounds $(ROUNDS) --variants stalled:idle
 
 # the emulated launch (rig:=emulated steps:=20) EMU_RUNS times beside EMU_HOGS busy-loop CPU hogs
 # (stopped at the end): the pass count (docs/emulated.md, "Under load"; needs ur-rtde)

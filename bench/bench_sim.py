@@ -8,7 +8,12 @@
    measured side by side (interleaved fresh processes, one collection series each), as ratios
    with median and spread; REV's src/ and scenes/ are exported with `git archive`. Use this on a
    loaded machine instead of the full data set: the paper-scale time scales with the ratio.
-4. `--dask-vs-pool N`: wall time of one data set of N series (scene paper, 450 steps) written by
+4. `--stage1-against REV`: one stage-1 objective evaluation of the calibration
+   (`mechanics_summary(paper, N, R)`, `--stage1-size N,R`, default the full 100,6), this checkout
+   against REV, in interleaved fresh processes (`--repeats` each; the first, untimed evaluation
+   of each process takes the imports and the compiled code's load): wall and CPU medians with
+   spread, their ratio, and whether the two summaries are identical (they must be).
+5. `--dask-vs-pool N`: wall time of one data set of N series (scene paper, 450 steps) written by
    the local process pool and by dask tasks on a LocalCluster of the same worker count (its
    start-up and shut-down included), interleaved, median of `--repeats`; the arrays are checked
    equal. This is what decides `slip dataset`'s default (docs/performance.md).
@@ -66,8 +71,10 @@ print(repr(out))
 """
 
 
-def against(rev: str, repeats: int) -> int:
-    """Print per-period CPU cost ratios (this checkout / rev) per scene; return an exit code."""
+def _interleaved(rev: str, repeats: int, script: str, args) -> dict | int:
+    """Run `script` with `args(r)` in fresh processes, this checkout and git revision REV's src/ and
+    scenes/ (exported with `git archive`) in turn, `repeats` times; return {tag: [last stdout line
+    as a literal]} or an exit code."""
     root = Path(__file__).resolve().parents[1]
     tmp = Path(tempfile.mkdtemp(prefix="bench_sim_rev_"))
     try:
@@ -82,24 +89,66 @@ def against(rev: str, repeats: int) -> int:
         runs = {"this": [], rev: []}
         for r in range(repeats):
             for tag, env, cwd in (("this", {}, root), (rev, {"PYTHONPATH": str(tmp / "rev" / "src")}, tmp / "rev")):
-                o = subprocess.run([sys.executable, "-c", _ONE_SERIES, str(r), *SCENES], capture_output=True,
+                o = subprocess.run([sys.executable, "-c", script, *args(r)], capture_output=True,
                                    text=True, env=dict(os.environ, **env), cwd=cwd, check=False)
                 if o.returncode:
                     print(f"bench_sim: error: {tag}: {o.stderr.strip().splitlines()[-1:]}", file=sys.stderr)
                     return 1
                 runs[tag].append(ast.literal_eval(o.stdout.strip().splitlines()[-1]))
-        print(f"per-period CPU cost, this checkout vs {rev} ({repeats} interleaved series each; load average "
-              f"{os.getloadavg()[0]:.1f}):")
-        for name in SCENES:
-            ratios = [a[name] / b[name] for a, b in zip(runs["this"], runs[rev])]
-            print(f"  {name:16s} this {statistics.median(a[name] for a in runs['this']):6.3f} ms, {rev} "
-                  f"{statistics.median(b[name] for b in runs[rev]):6.3f} ms; ratio median {statistics.median(ratios):.2f} "
-                  f"(min {min(ratios):.2f}, max {max(ratios):.2f})")
-        paper = statistics.median(a["paper"] / b["paper"] for a, b in zip(runs["this"], runs[rev]))
-        print(f"paper scene cost ratio = {paper:.2f}")
-        return 0
+        return runs
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def against(rev: str, repeats: int) -> int:
+    """Print per-period CPU cost ratios (this checkout / rev) per scene; return an exit code."""
+    runs = _interleaved(rev, repeats, _ONE_SERIES, lambda r: (str(r), *SCENES))
+    if isinstance(runs, int):
+        return runs
+    print(f"per-period CPU cost, this checkout vs {rev} ({repeats} interleaved series each; load average "
+          f"{os.getloadavg()[0]:.1f}):")
+    for name in SCENES:
+        ratios = [a[name] / b[name] for a, b in zip(runs["this"], runs[rev])]
+        print(f"  {name:16s} this {statistics.median(a[name] for a in runs['this']):6.3f} ms, {rev} "
+              f"{statistics.median(b[name] for b in runs[rev]):6.3f} ms; ratio median {statistics.median(ratios):.2f} "
+              f"(min {min(ratios):.2f}, max {max(ratios):.2f})")
+    paper = statistics.median(a["paper"] / b["paper"] for a, b in zip(runs["this"], runs[rev]))
+    print(f"paper scene cost ratio = {paper:.2f}")
+    return 0
+
+
+_STAGE1 = """
+import json, os, sys, time
+from incipient_slip.experiments.calibration import mechanics_summary
+from incipient_slip.sim import load_scene
+scene = load_scene("paper")
+n, runs = int(sys.argv[1]), int(sys.argv[2])
+mechanics_summary(scene, 2, 1, 1, 1)     # imports and the first load of compiled code, untimed
+load = os.getloadavg()[0]
+t, c = time.perf_counter(), time.process_time()
+s = mechanics_summary(scene, n, runs, 1, 1)
+print(repr((time.perf_counter() - t, time.process_time() - c, load, json.dumps(s, sort_keys=True))))
+"""
+
+
+def stage1_against(rev: str, repeats: int, size: str) -> int:
+    """Print one stage-1 evaluation's wall and CPU time, this checkout against rev; return an exit code."""
+    n, r = (int(v) for v in size.split(","))
+    print(f"stage-1 evaluation mechanics_summary(paper, {n}, {r}), this checkout vs {rev}, {repeats} interleaved "
+          f"fresh processes each; load average at start {os.getloadavg()[0]:.1f}")
+    runs = _interleaved(rev, repeats, _STAGE1, lambda _: (str(n), str(r)))
+    if isinstance(runs, int):
+        return runs
+    for tag, rows in runs.items():
+        wall, cpu, load = ([row[i] for row in rows] for i in range(3))
+        print(f"  {tag:10s} wall median {statistics.median(wall):7.3f} s (min {min(wall):.3f}, max {max(wall):.3f}); "
+              f"CPU median {statistics.median(cpu):7.3f} s (min {min(cpu):.3f}, max {max(cpu):.3f}); "
+              f"load {min(load):.1f}..{max(load):.1f}")
+    ratios = [b[0] / a[0] for a, b in zip(runs["this"], runs[rev])]
+    same = len({row[3] for rows in runs.values() for row in rows}) == 1
+    print(f"  {rev} / this wall: median {statistics.median(ratios):.1f}x (min {min(ratios):.1f}, max {max(ratios):.1f}); "
+          f"summaries identical: {same}; load average at end {os.getloadavg()[0]:.1f}")
+    return 0 if same else 1
 
 
 def dask_vs_pool(n_series: int, workers: int, repeats: int, steps: int = 450) -> int:
@@ -144,6 +193,10 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=7, help="repeats per scene for the per-effect cost")
     ap.add_argument("--workers", type=int, default=os.cpu_count())
     ap.add_argument("--against", metavar="REV", help="only compare per-period cost with git revision REV side by side")
+    ap.add_argument("--stage1-against", dest="stage1_against", metavar="REV",
+                    help="only compare one stage-1 calibration evaluation with git revision REV side by side")
+    ap.add_argument("--stage1-size", dest="stage1_size", default="100,6", metavar="N,R",
+                    help="collection series and no-action runs per material of --stage1-against (default 100,6)")
     ap.add_argument("--dask-vs-pool", dest="dask_vs_pool", type=int, metavar="N",
                     help="only compare pool and dask LocalCluster wall time of an N-series data set")
     ap.add_argument("--steps", type=int, default=450, help="periods per series for --dask-vs-pool (default 450)")
@@ -152,6 +205,8 @@ def main(argv=None) -> int:
         return dask_vs_pool(args.dask_vs_pool, args.workers, args.repeats, args.steps)
     if args.against:
         return against(args.against, args.repeats)
+    if args.stage1_against:
+        return stage1_against(args.stage1_against, args.repeats, args.stage1_size)
     print(f"machine: {os.cpu_count()} cores; workers = {args.workers}; load average at start {os.getloadavg()[0]:.1f}")
     print("per-period cost (one 500 ms period, single process):")
     med = {}

@@ -29,6 +29,15 @@ GRAPH_TIMEOUT_S = 300      # a hang guard that holds on a loaded machine (make t
 
 def pytest_configure(config):
     config.addinivalue_line("markers", "slow: takes more than a few seconds (deselect with -m 'not slow')")
+    if not hasattr(config, "workerinput"):          # once per session, before xdist starts its workers
+        _compile_mechanics()
+
+
+def _compile_mechanics() -> None:
+    """Fill numba's on-disk cache of the simulator's compiled mechanics (sim/mechanics.py) once, so
+    that no worker or node process compiles it (~4 s on a fresh checkout) inside a test's wait."""
+    from incipient_slip.sim import Rig, load_scene
+    Rig(load_scene("mechanics"), "pla", 0).run_mechanics([1.0], (0.5, 0.025, 0.05))
 
 
 def pytest_collection_modifyitems(items):

@@ -8,6 +8,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -286,6 +287,41 @@ def test_the_bridge_receives_a_topic_only_while_a_client_watches_it(graph, probe
     probe.until(lambda: estimates.subscriber_count() == 0, procs=[proc], what="the bridge unsubscribed")
 
 
+def main_thread_wakeups(pid: int) -> int:
+    """Times the process's main thread went to sleep by itself (voluntary context switches)."""
+    with open(f"/proc/{pid}/task/{pid}/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("voluntary_ctxt_switches"))
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/task"), reason="per-thread switch counts are Linux's")
+def test_the_bridge_reads_the_graph_in_batches_not_one_wake_up_per_message(graph, probe, batch_ms=100):
+    """(With batch_ms:=0, as before batches, the main thread woke 124 times here, once 8: on a
+    busy machine messages queue by themselves; with batches the bound holds at any load.)"""
+    estimates = probe.node.create_publisher(SlipEstimate)
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.foxglove_bridge", "port:=0",
+                        f"batch_ms:={batch_ms}"])
+    url, _ = served_url(proc)
+    first = FoxgloveClient(url)       # see the 0.30.3 note in the slip view test below
+    first.until(lambda: SlipEstimate.TOPIC in first.topics())
+    first.close()
+    client = FoxgloveClient(url)
+    client.until(lambda: SlipEstimate.TOPIC in client.topics())
+    client.subscribe([SlipEstimate.TOPIC])
+    probe.until(lambda: estimates.subscriber_count() == 1, procs=[proc], what="the bridge subscribed")
+    probe.until(lambda: (estimates.publish(estimate(0)), client.pump(0.05))[1] and client.messages,
+                procs=[proc], what="an estimate through the bridge")
+    n = 150
+    before = main_thread_wakeups(proc.pid)
+    for seq in range(1, n + 1):       # one every 2 ms, as a fast graph's small topics come
+        estimates.publish(estimate(seq))
+        time.sleep(0.002)
+    client.until(lambda: client.messages[-1].payload["seq"] == n, what="the last estimate")
+    wakeups = main_thread_wakeups(proc.pid) - before
+    # 0.3+ s of messages at 100 ms batches: a few wake-ups, plus the bridge's own timers
+    assert wakeups < n // 3, wakeups
+    client.close()
+
+
 def own_autogroup() -> str:
     """The kernel prints a task's autogroup only when autogroups are on and the task is in the root
     CPU cgroup (a container's task reads an empty file): '' means the scheduler ignores them here."""
@@ -312,3 +348,21 @@ def test_the_bridge_lowers_its_session_group_only_when_it_leads_it(own_session, 
     if priority != "idle":                  # idle is SCHED_IDLE, not a nice value
         assert out[1] == ("10" if priority == "low" else "0")
     assert open("/proc/self/autogroup").read().split()[-1] == before
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/task"), reason="per-thread priorities are Linux's")
+@pytest.mark.parametrize("priority", ["low", "idle"])
+def test_the_bridge_lowers_threads_started_before_it_zeromqs_io_thread_included(priority):
+    """The node's ZeroMQ context starts its I/O thread before the bridge lowers its priority:
+    that thread must end below the graph's nodes too (Linux keeps nice and policy per thread)."""
+    code = ("import os, zmq\n"
+            "from incipient_slip.nodes.foxglove_bridge import lower_priority\n"
+            "sock = zmq.Context.instance().socket(zmq.PUB); sock.bind('inproc://x')\n"
+            "tids = [int(t) for t in os.listdir('/proc/self/task')]\n"
+            "assert len(tids) > 1, tids\n"
+            f"lower_priority({priority!r})\n"
+            "print(sorted({(os.sched_getscheduler(t), os.getpriority(os.PRIO_PROCESS, t)) for t in tids}))\n"
+            "sock.close(0)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
+    expected = [(os.SCHED_IDLE, 0)] if priority == "idle" else [(os.SCHED_OTHER, 10)]
+    assert out.stdout.strip() == str(expected), out.stderr

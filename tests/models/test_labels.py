@@ -94,20 +94,3 @@ def test_label_option_changes_only_the_targets(fake_injection_dir, tmp_path):
     assert not np.allclose(true.y, pseudo.y)
     with pytest.raises(ValueError):
         load_windows(fake_injection_dir, spec, progress=False, label="bogus")
-
-
-def test_one_period_travel_is_bit_for_bit_the_array_rule():
-    """period_travel_mm (the calibration's per-period fast path) == gross_slip_travel_mm exactly,
-    on a simulated collection series and on sparse mocap where an interval holds no sample."""
-    from incipient_slip.models.labels import gross_slip_travel_mm, period_travel_mm
-    from incipient_slip.sim.protocols import run_collection
-    from incipient_slip.sim.rig import Rig
-    from incipient_slip.sim.scene import load_scene
-    rig = Rig(load_scene("mechanics"), "pla", 3)
-    cases = [(o.mocap_t_s, o.mocap_y_mm, o.t_start_s + rig.period_s) for o in run_collection(rig, 120)]
-    rng = np.random.default_rng(1)
-    for _ in range(200):
-        t = np.sort(rng.uniform(0.0, 0.5, rng.integers(1, 6)))      # few samples: empty intervals
-        cases.append((t, rng.normal(size=len(t)).cumsum(), float(rng.uniform(0.2, 0.7))))
-    for t, y, end in cases:
-        assert period_travel_mm(t, y, end) == gross_slip_travel_mm(t, y, np.array([end]))[0]

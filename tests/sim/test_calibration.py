@@ -3,6 +3,7 @@ provenance, the target table, bad input as named errors."""
 import math
 import shutil
 
+import numpy as np
 import pytest
 
 from incipient_slip.errors import UsageError
@@ -35,23 +36,18 @@ def test_amendment_2_no_action_must_slide_and_the_range_must_hold_at_every_level
     assert cal.mechanics_objective({**on, "T7": {**on["T7"], "1.1": math.nan}}) == pytest.approx(25.0)
 
 
-def test_the_slide_tracker_reads_y_where_the_slide_starts_not_after_it():
+def test_the_slide_start_is_y_where_the_slide_starts_not_after_it():
     from incipient_slip.sim.rig import Rig
     from incipient_slip.sim.scene import load_scene
     rig = Rig(cal.with_effects(load_scene("paper"), cal.MECHANICS), "pla", 3)
-    track = cal.SlideTracker(rig)
-    prev_y = 0.0
-    for _ in range(3000):
-        out = rig.step_period(2.3)
-        start, rule = track.push(out)
-        if rule:
-            # the slide starts after the pad sheared to its limit: at or beyond the last stuck y,
-            # and before where the period's slide carried the object
-            assert prev_y - 1e-9 <= start <= out.object_y_mm + 1e-9
-            break
-        prev_y = out.object_y_mm
-    else:
-        pytest.fail("no gross slip under a ramp at 2.3 kPa")
+    run = cal.run_mechanics(rig, np.full(3000, 2.3), stop_at_slip=True)
+    k = cal.first_rule(run)
+    assert k == len(run["travel_mm"]) - 1 > 0, "no gross slip under a ramp at 2.3 kPa"
+    start = cal.slide_start_mm(run, rig.k, k)
+    # the slide starts after the pad sheared to its limit: at or beyond the last stuck y,
+    # and before where the period's slide carried the object
+    assert run["object_y_mm"][k - 1] - 1e-9 <= start <= run["object_y_mm"][k] + 1e-9
+    assert math.isnan(cal.slide_start_mm(run, rig.k, 0))       # no slide in the first period
 
 
 def test_write_params_rewrites_value_and_source_and_keeps_the_file_loadable(tmp_path):
@@ -116,3 +112,11 @@ def test_estimation_pattern_items_follow_the_preregistered_rules():
     scores["e19"] = {**base, "rmse_s_above_0.7": 0.1}          # electrodes best near full stick: (d) fails
     items = cal.pattern_items(scores)
     assert not items["d"][0] and cal.pattern_objective(items) == 0.5
+
+
+def test_beta_interval_on_two_processes_gives_the_rows_of_one():
+    from incipient_slip.sim.scene import load_scene
+    args = (load_scene("paper"), 6, 1, 3)
+    one = cal.beta_interval(*args, grid=(0.75, 1.25), maxfev=3, progress=False)
+    two = cal.beta_interval(*args, grid=(0.75, 1.25), maxfev=3, progress=False, workers=2)
+    assert [r["beta"] for r in one] == [0.75, 1.25] and one == two

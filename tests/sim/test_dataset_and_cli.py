@@ -102,3 +102,64 @@ def test_dataset_series_equals_a_plain_step_period_loop():
     assert np.array_equal(data["pac_counts"], np.concatenate([o.pac_counts for o in outs]))
     assert np.array_equal(data["electrode_counts"], np.concatenate([o.electrode_counts for o in outs]))
     assert np.array_equal(data["object_y_mm"], [o.object_y_mm for o in outs])
+
+
+def _same_arrays(a: dict, b: dict):
+    assert set(a) == set(b)
+    for key in a:
+        assert a[key].dtype == b[key].dtype and np.array_equal(a[key], b[key]), key
+
+
+def _variant(name, params):
+    import dataclasses
+    return dataclasses.replace(load_scene(name), params=params)
+
+
+@pytest.mark.parametrize("material,seed,lag", [("pla", 5, 0.0), ("tpu", 77, 0.0), ("abs", 3, 1.0)])
+def test_series_of_views_equal_each_scene_simulated_on_its_own(material, seed, lag):
+    # one run of paper gives no_injection's P_AC (its own modal filter state) and electrodes_only's
+    # and mechanics' series exactly; the full 450 steps cover stick, slides (split periods) and re-sticks
+    import copy
+    from incipient_slip.sim.dataset import simulate_series
+    params = copy.deepcopy(load_scene("paper").params)
+    params["stick_slip"]["friction_limit_lag_s"] = lag
+    paper = _variant("paper", params)
+    views = [_variant(n, params) for n in ("no_injection", "electrodes_only", "mechanics")]
+    together = simulate_series(paper, material, seed, 450, views)
+    alone = [simulate_series(sc, material, seed, 450) for sc in [paper] + views]
+    assert together[0]["gross_slip"].any() and not together[0]["gross_slip"].all()
+    for t, a in zip(together, alone):
+        _same_arrays(t, a)
+    assert not np.array_equal(together[0]["pac_counts"], together[1]["pac_counts"])
+
+
+def test_dataset_with_views_equals_each_data_set_written_on_its_own(tmp_path):
+    scenes = {n: load_scene(n) for n in ("paper", "no_injection", "electrodes_only")}
+    write_dataset(scenes["paper"], 3, 11, tmp_path / "one" / "paper", workers=2, steps=8, progress=False,
+                  views={tmp_path / "one" / n: scenes[n] for n in ("no_injection", "electrodes_only")})
+    for n, sc in scenes.items():
+        write_dataset(sc, 3, 11, tmp_path / "each" / n, workers=1, steps=8, progress=False)
+        assert (tmp_path / "one" / n / "meta.json").read_text() == (tmp_path / "each" / n / "meta.json").read_text()
+        for i in range(3):
+            with np.load(tmp_path / "one" / n / f"series_{i:05d}.npz") as a, \
+                    np.load(tmp_path / "each" / n / f"series_{i:05d}.npz") as b:
+                _same_arrays(dict(a), dict(b))
+
+
+def test_views_that_do_not_follow_from_the_run_are_refused():
+    import copy
+    from incipient_slip.sim.dataset import view_kind
+    paper, no_inj = load_scene("paper"), load_scene("no_injection")
+    assert view_kind(no_inj, paper) == "without_pzt" and view_kind(load_scene("electrodes_only"), paper) == "no_pac"
+    assert view_kind(paper, paper) == "same"
+    params = copy.deepcopy(paper.params)
+    params["electrodes"]["drift_counts"] += 1.0
+    other = [_variant("no_injection", params),       # other parameters
+             paper,                                  # more effects than the run has
+             ]
+    for view, source in zip(other, (paper, no_inj)):
+        with pytest.raises(ValueError):
+            view_kind(view, source)
+    with pytest.raises(ValueError):                  # a louder PZT is not the same P_AC
+        import dataclasses
+        view_kind(dataclasses.replace(paper, injection_db=6.0), paper)

@@ -123,38 +123,44 @@ RANGE_BAND_MM = (1.1, 1.9)                      # T7: the deformable range 1.5 +
 LABEL_BINS_KPA = (1.1, 2.0, 3.5, 5.0, 6.0)      # label - truth reported by these F_N bins
 
 
-class SlideTracker:
-    """Follows a rig period by period: where the slide under way started (true y at the instant
-    the anchor began to move) and the paper's gross-slip rule on mocap for the period just run."""
+def slide_start_mm(run: dict, k_spring: float, k: int) -> float:
+    """Return y (mm) where the slide under way in period k of a `Rig.run_mechanics` run started (true
+    y at the instant the anchor began to move), or nan when period k has no slide.
 
-    def __init__(self, rig):
-        from incipient_slip.models import labels
-        self.rig = rig
-        self.labels = labels
-        self.start_y = math.nan      # y where the slide under way started
-        self.prev_sliding = False
+    A slide begins at the start of a period with gross slip that does not continue one still sliding
+    at the end of the period before, with the spring at Q0: y = u - Q0 / k_s."""
+    gross, sliding, u, q0 = (run[key].tolist() for key in ("gross_slip", "sliding", "actuator_mm", "slide_q0_n"))
+    start, prev_sliding = math.nan, False
+    for j in range(k + 1):
+        if gross[j] and not prev_sliding:
+            start = u[j] - q0[j] / k_spring
+        elif not gross[j]:
+            start = math.nan
+        prev_sliding = gross[j] and sliding[j]
+    return start
 
-    def push(self, out) -> tuple[float, bool]:
-        """Return (y at the start of the slide under way or nan, the label rule fires this period)."""
-        st = self.rig.state
-        if out.gross_slip and not self.prev_sliding:
-            # the slide begins at the period start, with the spring at Q0: y = u - Q0 / k_s
-            self.start_y = out.actuator_mm - st.slide_q0_n / self.rig.k
-        elif not out.gross_slip:
-            self.start_y = math.nan
-        self.prev_sliding = out.gross_slip and st.sliding
-        rule = False
-        if out.mocap_y_mm is not None:
-            end = out.t_start_s + self.rig.period_s
-            rule = self.labels.period_travel_mm(out.mocap_t_s, out.mocap_y_mm, end) >= self.labels.GROSS_SLIP_MM
-        return self.start_y, rule
+
+def run_mechanics(rig, forces_kpa, stop_at_slip: bool = False) -> dict:
+    """Return `rig.run_mechanics` over the F_N of every period, travel_mm read by the paper's
+    gross-slip rule (models.labels), stopping after the first period where it fires if asked."""
+    from incipient_slip.models import labels
+    return rig.run_mechanics(forces_kpa, (labels.GROSS_SLIP_SPAN_S, labels.EARLY_S, labels.LATE_S),
+                             stop_travel_mm=labels.GROSS_SLIP_MM if stop_at_slip else math.inf)
+
+
+def first_rule(run: dict) -> int:
+    """Return the first period of a `Rig.run_mechanics` run where the paper's gross-slip rule fires
+    (mocap travel within the period >= 0.02 mm), or -1."""
+    from incipient_slip.models.labels import GROSS_SLIP_MM
+    hits = np.flatnonzero(run["travel_mm"] >= GROSS_SLIP_MM)
+    return int(hits[0]) if hits.size else -1
 
 
 def onset_travel(scene: Scene, n_series: int, seed: int) -> dict:
     """Return, per collection series (materials round robin), the onset travel under the three
     readings of T1 (docs/calibration.md, amendment 2), whether it slipped, the F_N (and the friction
     limit's effective F_N) of the onset period, and label - truth pairs by F_N for the label report."""
-    from incipient_slip.sim.protocols import run_collection
+    from incipient_slip.sim.protocols import collection_forces_kpa
     from incipient_slip.sim.rig import Rig, series_seed
     mech = with_effects(scene, MECHANICS)
     mats = scene.materials
@@ -164,30 +170,27 @@ def onset_travel(scene: Scene, n_series: int, seed: int) -> dict:
     for i in range(n_series):
         mat = mats[i % len(mats)]
         rig = Rig(mech, mat, series_seed(seed, i))
-        track = SlideTracker(rig)
-        ys, fts, fns, truth, k_on, start_on, f_eff = [], [], [], [], -1, math.nan, math.nan
-        for out in run_collection(rig):
-            start, rule = track.push(out)
-            ys.append(out.object_y_mm)
-            fts.append(out.tangential_force_n)
-            fns.append(out.normal_force_kpa)
-            truth.append(out.load_ratio_stick)
-            if rule and k_on < 0:
-                k_on, start_on, f_eff = len(ys) - 1, start, rig.friction_force_n / kpa_n
+        run = run_mechanics(rig, collection_forces_kpa(rig.seed, 450))
+        ys, fts, fns, truth = (run[key].tolist() for key in
+                               ("object_y_mm", "tangential_force_n", "normal_force_kpa", "load_ratio_stick"))
+        k_on = first_rule(run)
         rows["slipped"].append(k_on >= 0)
         rows["material"].append(mat)
-        rows["start"].append(float(start_on) if k_on >= 0 else math.nan)
+        rows["start"].append(float(slide_start_mm(run, rig.k, k_on)) if k_on >= 0 else math.nan)
         rows["prev"].append(float(ys[k_on - 1]) if k_on > 0 else math.nan)
         rows["end"].append(float(ys[k_on]) if k_on >= 0 else math.nan)
         rows["onset_fn"].append(float(fns[k_on]) if k_on >= 0 else math.nan)
-        rows["onset_f_eff"].append(float(f_eff))
+        rows["onset_f_eff"].append(float(run["friction_force_n"][k_on] / kpa_n) if k_on >= 0 else math.nan)
         rows["jump"].append(float(np.max(np.diff(np.concatenate([[0.0], ys])))))
         if k_on > 0:
             ft_slip = max(fts[: k_on + 1])
-            for j in range(k_on):
-                label_err.append((fns[j], (1.0 - fts[j] / ft_slip if ft_slip > 0 else 0.0) - truth[j]))
+            label = 1.0 - run["tangential_force_n"][:k_on] / ft_slip if ft_slip > 0 else np.zeros(k_on)
+            label_err.extend(zip(fns[:k_on], (label - run["load_ratio_stick"][:k_on]).tolist()))
     rows["label_err"] = label_err
     return rows
+
+
+RANGE_CHUNK = 250       # T7: periods per compiled call until the slide (the ramps run ~100-1000)
 
 
 def deformable_range(scene: Scene, levels, runs: int, seed: int) -> dict:
@@ -201,12 +204,17 @@ def deformable_range(scene: Scene, levels, runs: int, seed: int) -> dict:
         vals = []
         for j in range(runs * len(mats)):
             rig = Rig(mech, mats[j % len(mats)], series_seed(seed, 1000 * li + j))
-            track = SlideTracker(rig)
-            y0 = math.nan
-            for _ in range(RANGE_MAX_STEPS):
-                start, rule = track.push(rig.step_period(fn))
-                if rule:
-                    y0 = start
+            y0, done = math.nan, 0
+            runs_so_far = []
+            while done < RANGE_MAX_STEPS:
+                run = run_mechanics(rig, np.full(min(RANGE_CHUNK, RANGE_MAX_STEPS - done), float(fn)),
+                                    stop_at_slip=True)
+                runs_so_far.append(run)
+                done += len(run["travel_mm"])
+                k = first_rule(run)
+                if k >= 0:
+                    joined = {key: np.concatenate([r[key] for r in runs_so_far]) for key in run}
+                    y0 = slide_start_mm(joined, rig.k, done - 1)
                     break
             vals.append(float(y0))
         out[float(fn)] = vals
@@ -216,7 +224,6 @@ def deformable_range(scene: Scene, levels, runs: int, seed: int) -> dict:
 def no_action(scene: Scene, runs: int, seed: int) -> dict:
     """Return per material the no-action runs (constant 2.94 kPa, 450 steps): final y, whether the
     paper's rule saw gross slip, and the final y split into slide (anchor) and pad shear."""
-    from incipient_slip.sim.protocols import run_constant
     from incipient_slip.sim.rig import Rig, series_seed
     mech = with_effects(scene, MECHANICS)
     res = {}
@@ -224,11 +231,9 @@ def no_action(scene: Scene, runs: int, seed: int) -> dict:
         rows = []
         for j in range(runs):
             rig = Rig(mech, mat, series_seed(seed, 100 * mi + j))
-            track = SlideTracker(rig)
-            slid, last = False, None
-            for last in run_constant(rig, NO_ACTION_KPA):
-                slid = track.push(last)[1] or slid
-            rows.append({"y": float(last.object_y_mm), "slid": slid, "slide_mm": float(rig.state.anchor_mm),
+            run = run_mechanics(rig, np.full(450, NO_ACTION_KPA))
+            rows.append({"y": float(run["object_y_mm"][-1]), "slid": first_rule(run) >= 0,
+                         "slide_mm": float(rig.state.anchor_mm),
                          "shear_mm": float(rig.state.bulk_mm + rig.state.interfacial_mm)})
         res[mat] = rows
     return res
@@ -377,21 +382,35 @@ def fit_mechanics(scene: Scene, n_series: int, runs: int, seed: int, maxfev: int
             "objective": mechanics_objective(summ), "evaluations": len(trace), "trace": trace, "chosen": chosen}
 
 
+def _beta_row(scene: Scene, b: float, n_series: int, runs: int, seed: int, maxfev: int) -> dict:
+    sc = with_values(scene, {FITTED[2]: float(b)})
+    fit = fit_mechanics(sc, n_series, runs, seed, maxfev, progress=False, stiffness_only=True)
+    s = fit["summary"]
+    return {"beta": float(b), "k_b": fit["values"]["pre_slip.bulk_shear_n_per_mm"],
+            "k_s": fit["values"]["stick_slip.spring_n_per_mm"], "J": fit["objective"],
+            "T7": s["T7"], "consistent": consistent_with_open_loop(s)}
+
+
 def beta_interval(scene: Scene, n_series: int, runs: int, seed: int, grid=(0.5, 0.75, 1.0, 1.25),
-                  maxfev: int = 25, progress: bool = True) -> list[dict]:
+                  maxfev: int = 25, progress: bool = True, workers: int = 1) -> list[dict]:
     """Return, per beta on `grid`, the refit of k_b and k_s and whether T1-T4' and T7 can be met:
-    the interval of beta that the open-loop targets allow."""
+    the interval of beta that the open-loop targets allow. The refits are independent (common
+    random numbers): `workers` forked processes run them, with the same rows as in process."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    args = [(scene, b, n_series, runs, seed, maxfev) for b in grid]
+    pool = ProcessPoolExecutor(min(workers, len(grid)), mp_context=mp.get_context("fork")) if workers > 1 else None
     rows = []
-    for b in grid:
-        sc = with_values(scene, {FITTED[2]: float(b)})
-        fit = fit_mechanics(sc, n_series, runs, seed, maxfev, progress=False, stiffness_only=True)
-        s = fit["summary"]
-        rows.append({"beta": float(b), "k_b": fit["values"]["pre_slip.bulk_shear_n_per_mm"],
-                     "k_s": fit["values"]["stick_slip.spring_n_per_mm"], "J": fit["objective"],
-                     "T7": s["T7"], "consistent": consistent_with_open_loop(s)})
-        if progress:
-            print(f"  beta {b:g}: J {fit['objective']:.2f}, T7 " + "/".join(f"{v:.2f}" for v in s["T7"].values())
-                  + (" (consistent)" if rows[-1]["consistent"] else ""), flush=True)
+    try:
+        for row in (pool.map(_beta_row, *zip(*args)) if pool else (_beta_row(*a) for a in args)):
+            rows.append(row)
+            if progress:
+                print(f"  beta {row['beta']:g}: J {row['J']:.2f}, T7 " + "/".join(f"{v:.2f}" for v in row["T7"].values())
+                      + (" (consistent)" if row["consistent"] else ""), flush=True)
+    finally:
+        if pool:
+            pool.shutdown()
     return rows
 
 
@@ -590,7 +609,7 @@ def run(settings) -> dict:
         if settings.progress:
             print("stage 1b (the interval of beta that T1-T4' and T7 allow; k_b and k_s refitted per beta)", flush=True)
         betas = beta_interval(scene, max(20, n_series // 2), max(1, runs // 2), settings.seed,
-                              maxfev=settings.pick(8, 15), progress=settings.progress)
+                              maxfev=settings.pick(8, 15), progress=settings.progress, workers=settings.jobs)
     fn = fit_fn_channel(scene, settings.seed)
     scene = with_values(scene, {("fingertip_modes", "fn_channel_gain"): fn["value"]})
     if settings.progress:
@@ -604,9 +623,8 @@ def run(settings) -> dict:
         if settings.progress:
             print(f"stage 2 (estimation pattern T6): electrode grid {ELECTRODE_GRID}, {n_est} series per data set",
                   flush=True)
-        el = (fit_electrodes(scene, n_est, settings.seed + 11, Path(settings.work) / "data", settings.progress)
-              if opt("electrode_grid", False) else
-              check_pattern(scene, n_est, settings.seed + 11, Path(settings.work) / "data", settings.progress))
+        el = (fit_electrodes if opt("electrode_grid", False) else check_pattern)(
+            scene, n_est, settings.seed + 11, Path(settings.work) / "data", settings.progress, settings.jobs)
         items = el["items"]
         rows.append({"id": "T6", "paper": "pattern (a)-(e)", "sim": "; ".join(
             f"({k}) {'pass' if ok else 'FAIL'}: {detail}" for k, (ok, detail) in items.items()),
@@ -693,15 +711,24 @@ ELECTRODE_GRID = {"core_stiction_ratio": (0.0, 0.1, 0.2), "contact_offset_counts
                   "drift_counts": (1.0, 3.0, 5.0)}
 
 
-def _study(scene: Scene, scene_name: str, methods, n_series: int, seed: int, work: Path, progress: bool) -> dict:
-    """Return {method: per-method scores} of a quick estimation study on freshly simulated data."""
-    from incipient_slip.models.pipeline import run_study
+def _simulate(sets: dict, n_series: int, seed: int, work: Path, progress: bool, workers: int = 1) -> None:
+    """Simulate the data sets {name: scene} into WORK/name, in one pass: the first scene's runs
+    give the others' series exactly (`sim.dataset.view_kind`: the same parameters, fewer effects)."""
     from incipient_slip.sim.dataset import write_dataset
 
+    (name, scene), *views = sets.items()
+    for n in sets:
+        for stale in (Path(work) / n).glob("series_*.npz"):
+            stale.unlink()
+    write_dataset(scene, n_series, seed, Path(work) / name, workers=workers, progress=progress,
+                  views={Path(work) / n: sc for n, sc in views})
+
+
+def _study(scene_name: str, methods, work: Path) -> dict:
+    """Return {method: per-method scores} of a quick estimation study on the data set WORK/scene_name."""
+    from incipient_slip.models.pipeline import run_study
+
     d = Path(work) / scene_name
-    for stale in d.glob("series_*.npz"):
-        stale.unlink()
-    write_dataset(scene, n_series, seed, d, workers=1, progress=progress)
     dirs = {"paper": d, "no_injection": d}
     study = run_study(dirs, methods=methods, quick=True, max_train=2000, grid_max=600, progress=False)
     out = {}
@@ -739,13 +766,14 @@ def pattern_objective(items: dict) -> float:
     return 0.5 * sum(not ok for ok, _ in items.values())
 
 
-def fit_electrodes(scene: Scene, n_series: int, seed: int, work: Path, progress: bool) -> dict:
+def fit_electrodes(scene: Scene, n_series: int, seed: int, work: Path, progress: bool, workers: int = 1) -> dict:
     """Return the electrode nuisance amplitudes from the documented grid (T6 items b and d decide;
     ties go to the smaller amplitudes), the estimation scores at them and the grid's rows."""
     from incipient_slip.sim.scene import load_scene
-    vib = _study(scene, "paper", ("injection",), n_series, seed, work, progress)
-    vt = _study(dataclasses.replace(load_scene("no_injection"), params=scene.params), "no_injection",
-                ("vibrotactile",), n_series, seed, work, progress)
+    _simulate({"paper": scene, "no_injection": dataclasses.replace(load_scene("no_injection"), params=scene.params)},
+              n_series, seed, work, progress, workers)
+    vib = _study("paper", ("injection",), work)
+    vt = _study("no_injection", ("vibrotactile",), work)
     rows, best = [], None
     eo = load_scene("electrodes_only")
     names = list(ELECTRODE_GRID)
@@ -753,7 +781,8 @@ def fit_electrodes(scene: Scene, n_series: int, seed: int, work: Path, progress:
         values = dict(zip(names, point))
         sc = with_values(dataclasses.replace(eo, params=scene.params),
                          {("electrodes", k): v for k, v in values.items()})
-        el = _study(sc, "electrodes", ELECTRODE_METHODS, n_series, seed, work, progress)
+        _simulate({"electrodes": sc}, n_series, seed, work, progress, workers)
+        el = _study("electrodes", ELECTRODE_METHODS, work)
         scores = {**vib, **vt, **el}
         items = pattern_items(scores)
         j = pattern_objective(items)
@@ -768,14 +797,15 @@ def fit_electrodes(scene: Scene, n_series: int, seed: int, work: Path, progress:
             "scores": scores, "items": {k: [bool(v[0]), v[1]] for k, v in items.items()}}
 
 
-def check_pattern(scene: Scene, n_series: int, seed: int, work: Path, progress: bool) -> dict:
+def check_pattern(scene: Scene, n_series: int, seed: int, work: Path, progress: bool, workers: int = 1) -> dict:
     """Return T6 at the params file's electrode amplitudes (one study per scene, no grid)."""
     from incipient_slip.sim.scene import load_scene
-    vib = _study(scene, "paper", ("injection",), n_series, seed, work, progress)
-    vt = _study(dataclasses.replace(load_scene("no_injection"), params=scene.params), "no_injection",
-                ("vibrotactile",), n_series, seed, work, progress)
-    el = _study(dataclasses.replace(load_scene("electrodes_only"), params=scene.params), "electrodes",
-                ELECTRODE_METHODS, n_series, seed, work, progress)
+    at = {n: dataclasses.replace(load_scene(n), params=scene.params) for n in ("no_injection", "electrodes_only")}
+    _simulate({"paper": scene, "no_injection": at["no_injection"], "electrodes": at["electrodes_only"]},
+              n_series, seed, work, progress, workers)
+    vib = _study("paper", ("injection",), work)
+    vt = _study("no_injection", ("vibrotactile",), work)
+    el = _study("electrodes", ELECTRODE_METHODS, work)
     scores = {**vib, **vt, **el}
     items = pattern_items(scores)
     return {**{k: scene.params["electrodes"][k] for k in ELECTRODE_GRID}, "objective": pattern_objective(items),

@@ -15,6 +15,7 @@ any parameter: this is the validation, and all of it is the simulated rig.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from pathlib import Path
@@ -101,9 +102,15 @@ def add_arguments(parser) -> None:
 
 
 def _scene(name: str, params: dict):
+    return dataclasses.replace(_loaded_scene(name), params=params)
+
+
+@functools.lru_cache(maxsize=None)
+def _loaded_scene(name: str):
+    """The scene file, parsed once per process (every closed-loop run replaces its params)."""
     from incipient_slip.sim.scene import load_scene
 
-    return dataclasses.replace(load_scene(name), params=params)
+    return load_scene(name)
 
 
 def _window(prev, cur, stream: str) -> np.ndarray:
@@ -251,10 +258,10 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
                                                       for k, v in {**overrides, **fit["values"]}.items()})
     summ, consistent = fit["summary"], fit["consistent"]
     d = Path(work) / _slug(name)
-    dirs = {}
-    for sname in ("paper", "no_injection"):     # reused when the same physics made it before
-        dirs[sname] = ensure_dataset(_scene(sname, scene.params), n_series, seed + 1, d / sname, workers=1,
-                                     progress=False)
+    # reused when the same physics made them before; no_injection's series come from paper's runs
+    dirs = {"paper": ensure_dataset(_scene("paper", scene.params), n_series, seed + 1, d / "paper", workers=1,
+                                    progress=False, views={d / "no_injection": _scene("no_injection", scene.params)}),
+            "no_injection": d / "no_injection"}
     study = run_study(dirs, quick=True, max_train=2000, grid_max=600, progress=False)
     models = {m: r.model for m, r in study.results.items()}
     mats = tuple(materials) if materials else scene.materials

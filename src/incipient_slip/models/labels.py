@@ -76,30 +76,6 @@ def gross_slip_travel_mm(mocap_t_s: np.ndarray, mocap_y_mm: np.ndarray,
     return y_late - y_early
 
 
-def period_travel_mm(mocap_t_s: np.ndarray, mocap_y_mm: np.ndarray, period_end_s: float) -> float:
-    """Return `gross_slip_travel_mm` for one period end, bit for bit, without numpy's per-call cost.
-
-    For callers that judge one period at a time on its own ~60 mocap samples (the calibration's
-    slide tracker calls it about a million times per fit, where the array version cost 150 us a
-    call). Same arithmetic in the same order: a running sum (np.cumsum is sequential), left
-    bisection (np.searchsorted side='left') and np.interp where the interval holds no sample."""
-    from bisect import bisect_left
-    t = mocap_t_s.tolist()
-    csum, acc = [0.0], 0.0
-    for v in np.asarray(mocap_y_mm, dtype=np.float64).tolist():
-        acc += v
-        csum.append(acc)
-
-    def mean(t0: float, t1: float) -> float:
-        lo, hi = bisect_left(t, t0 - 1e-9), bisect_left(t, t1 - 1e-9)
-        if hi > lo:
-            return (csum[hi] - csum[lo]) / (hi - lo)
-        return float(np.interp(0.5 * (t0 + t1), mocap_t_s, mocap_y_mm))
-    end = float(period_end_s)
-    start = end - GROSS_SLIP_SPAN_S
-    return mean(end - LATE_S, end) - mean(start, start + EARLY_S)
-
-
 def pseudo_stick_ratio(tangential_force_n: np.ndarray, travel_mm: np.ndarray) -> SeriesLabels:
     """Return the pseudo-stick ratio for one series from F_T and the 500 ms travel per sample."""
     tangential_force_n = np.asarray(tangential_force_n, dtype=np.float64)

@@ -33,6 +33,7 @@ from incipient_slip.messages import PAC_RATE_HZ, Message, MessageError
 __all__ = ["FoxgloveBridge", "register"]
 
 FOLLOW_S = 0.1      # how often the topics received follow what the clients subscribe to
+BATCH_MS = 20.0     # the graph read in batches this far apart: a viewer redraws at <= 60 Hz
 
 
 class FoxgloveBridge(Node):
@@ -49,6 +50,9 @@ class FoxgloveBridge(Node):
                                    "channel always has every sample)"),
               "wait_for_client_s": Param(0.0, lo=0.0, help="hold this node's start (and a launch's "
                                          "sources) until a viewer subscribes, at most this long"),
+              "batch_ms": Param(BATCH_MS, lo=0.0, hi=1000.0,
+                                help="read the graph every this many ms, all that queued at once "
+                                     "(0: wake for each message)"),
               "priority": Param("low", choices=("idle", "low", "normal"),
                                 help="CPU priority: idle = only CPU time no node wants (SCHED_IDLE), "
                                      "low = nice 10, normal = as the graph's nodes")}
@@ -57,6 +61,7 @@ class FoxgloveBridge(Node):
 
     def __init__(self, **kwargs):
         super().__init__("foxglove_bridge", **kwargs)
+        self._batch_s = self.param("batch_ms") / 1000.0
         # on a busy machine the loop's nodes get the CPU first; the server's threads, started
         # below, inherit this policy
         lower_priority(self.param("priority"))
@@ -78,6 +83,17 @@ class FoxgloveBridge(Node):
         self.follow_clients()
         if self.param("wait_for_client_s") > 0:
             self.wait_for_client(self.param("wait_for_client_s"))
+
+    def spin_once(self, timeout_s: float = POLL_S) -> None:
+        """Handles what came (waiting for it as every node does), then sleeps `batch_ms` while
+        the graph's messages queue, and handles all of them in one go: the bridge and the SDK's
+        threads wake ~50 times a second, not for every message (each wake-up costs CPU on the
+        cores the loop's nodes need; docs/performance.md, "Live view"). A viewer sees the
+        graph up to `batch_ms` late."""
+        super().spin_once(timeout_s)
+        if self._batch_s and not self.stopping:
+            time.sleep(self._batch_s)
+            self._read_queued()
 
     def on_message(self, topic: str, body: bytes, recv_ns: int) -> None:
         try:
@@ -112,26 +128,42 @@ class FoxgloveBridge(Node):
 
 
 def lower_priority(priority: str) -> None:
-    """Puts this process (its threads started from now on) below the graph's nodes.
+    """Puts this process (every thread it has, ZeroMQ's I/O thread included, and those it
+    starts from now on) below the graph's nodes.
 
-    Linux's scheduler shares the CPU between session groups ("autogroups", when the kernel has
-    them on and the process is in the root CPU cgroup) before it shares a group's time between its
-    processes by nice: a bridge alone in its session (a node started with `setsid`, as
+    Linux sets nice and the scheduling policy per thread: the node's ZeroMQ context started its
+    I/O thread before this runs, so each existing thread (/proc/self/task) is lowered too.
+    Linux's scheduler also shares the CPU between session groups ("autogroups", when the kernel
+    has them on and the process is in the root CPU cgroup) before it shares a group's time between
+    its processes by nice: a bridge alone in its session (a node started with `setsid`, as
     `bench/bench_loop.py` and some supervisors do) would weigh as much as each of the loop's
     nodes whatever its own nice. So when this process leads its session, its group's nice is
     lowered as well; a bridge in a shared session (a launch's, a terminal's) leaves that alone."""
     if priority == "normal":
         return
-    if priority == "idle" and hasattr(os, "SCHED_IDLE"):
-        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
-    else:                                   # no SCHED_IDLE (not Linux): nice is what there is
-        os.nice(10)
+    idle = priority == "idle" and hasattr(os, "SCHED_IDLE")
+    for tid in _thread_ids():
+        try:
+            if idle:
+                os.sched_setscheduler(tid, os.SCHED_IDLE, os.sched_param(0))
+            else:                           # no SCHED_IDLE (not Linux): nice is what there is
+                os.setpriority(os.PRIO_PROCESS, tid, max(os.getpriority(os.PRIO_PROCESS, tid), 10))
+        except OSError:                     # a thread that ended meanwhile
+            pass
     if os.getsid(0) == os.getpid():
         try:
             with open("/proc/self/autogroup", "w") as f:
                 f.write("19" if priority == "idle" else "10")
         except OSError:                     # no autogroups here, or not allowed: nothing to do
             pass
+
+
+def _thread_ids() -> list[int]:
+    """This process's thread ids (Linux); elsewhere the process itself (0: the calling thread)."""
+    try:
+        return [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        return [0]
 
 
 def main(argv=None):

@@ -10,7 +10,16 @@ a stated range for a_sat; it is Hertz to first order as F -> 0 and never exceeds
 """
 from __future__ import annotations
 
-import math
+# the formulas the rig evaluates every period are compiled with the rest of its mechanics (one file,
+# sim/mechanics.py); they are re-exported here under their documented names:
+# hertz_radius_mm a_H = (3 F R / 4 E*)^(1/3); contact_radius_mm a = a_sat (1 - exp(-a_H / a_sat));
+# bulk_shear_stiffness_n_per_mm k_b = k_ref (F_N / F_ref)^beta, F_N clamped at the no-contact
+# threshold (the finger pad's tangential stiffness grows with normal force: Pataky, Latash &
+# Zatsiorsky 2005, J. Biomech. 38:1533-1540; for the BioTac the fluid pressure tensions the skin;
+# beta is not identified by the paper's open-loop data and is swept, docs/calibration.md);
+# interfacial_max_mm 3 mu F_N / (16 G* a), the interfacial Mindlin displacement at full slip.
+from .mechanics import (bulk_shear_stiffness_n_per_mm, contact_radius_mm, hertz_radius_mm,  # noqa: F401
+                        interfacial_max_mm)
 
 
 def effective_radius_mm(p: dict) -> float:
@@ -36,31 +45,3 @@ def interfacial_shear_modulus_mpa(p: dict, object_modulus_mpa: float) -> float:
     return 1.0 / ((2 - nu) / p["interfacial_shear_modulus_mpa"] + (2 - nu) / g_obj)
 
 
-def hertz_radius_mm(normal_force_n: float, radius_mm: float, e_star_mpa: float) -> float:
-    """Return the Hertz contact radius a_H = (3 F R / 4 E*)^(1/3) in mm (0 without contact)."""
-    return float(math.cbrt(3.0 * max(normal_force_n, 0.0) * radius_mm / (4.0 * e_star_mpa)))
-
-
-def contact_radius_mm(normal_force_n: float, radius_mm: float, e_star_mpa: float, saturation_mm: float) -> float:
-    """Return the contact radius a = a_sat (1 - exp(-a_H / a_sat)) in mm: Hertz at small loads, < a_sat always."""
-    a_h = hertz_radius_mm(normal_force_n, radius_mm, e_star_mpa)
-    return float(-saturation_mm * math.expm1(-a_h / saturation_mm))
-
-
-def bulk_shear_stiffness_n_per_mm(ref_n_per_mm: float, normal_force_n: float, ref_force_n: float,
-                                  exponent: float, min_force_n: float) -> float:
-    """Return the pad's bulk shear stiffness k_b = k_ref (F_N / F_ref)^beta in N/mm.
-
-    The finger pad's tangential stiffness grows with normal force (Pataky, Latash & Zatsiorsky 2005,
-    J. Biomech. 38:1533-1540; for the BioTac the fluid pressure tensions the skin). beta is not
-    identified by the paper's open-loop data and is swept (docs/calibration.md). F_N is clamped at
-    the no-contact threshold so k_b stays positive and finite as F_N -> 0."""
-    f = max(float(normal_force_n), float(min_force_n))
-    return float(ref_n_per_mm * (f / ref_force_n) ** exponent)
-
-
-def interfacial_max_mm(mu_fn_n: float, g_star_mpa: float, a_mm: float) -> float:
-    """Return the interfacial Mindlin displacement at full slip, 3 mu F_N / (16 G* a), in mm."""
-    if a_mm <= 0.0:
-        return 0.0
-    return 3.0 * mu_fn_n / (16.0 * g_star_mpa * a_mm)

@@ -10,6 +10,7 @@ can write (a shared file system).
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -27,10 +28,39 @@ TRUTH = ("normal_force_kpa", "tangential_force_n", "actuator_mm", "object_y_mm",
          "load_ratio_stick", "gross_slip")
 
 
-def simulate_series(scene: Scene, material: str, seed: int, steps: int = 450) -> dict:
-    """Return one data-collection series as the dict of arrays stored in series_NNNNN.npz."""
-    rig = Rig(scene, material, seed)
-    outs = list(run_collection(rig, steps))
+PAC_EFFECTS = frozenset({"fingertip_modes", "injection", "vibrotactile", "ambient_noise"})
+SLOW = (("electrodes", ("electrode_counts",)), ("pdc", ("pdc_counts",)), ("temperature", ("tac_counts", "tdc_counts")),
+        ("mocap", ("mocap_t_s", "mocap_y_mm")))
+
+
+def view_kind(view: Scene, source: Scene) -> str:
+    """Return how `view`'s series follow from a run of `source` with the same seed: "same" P_AC,
+    P_AC "without_pzt" (the source's minus the injection) or "no_pac"; raise ValueError when they
+    do not (other parameters, other mechanics, or P_AC effects that are neither)."""
+    if view.params != source.params or not view.effects <= source.effects:
+        raise ValueError(f"scene {view.name!r} does not follow from a run of {source.name!r}")
+    if {"contact", "stick_slip"} & source.effects != {"contact", "stick_slip"} & view.effects:
+        raise ValueError(f"scene {view.name!r} has other mechanics than {source.name!r}")
+    pac_v, pac_s = view.effects & PAC_EFFECTS, source.effects & PAC_EFFECTS
+    if pac_v == pac_s and (not view.has("injection") or view.injection_db == source.injection_db):
+        return "same"
+    if not pac_v:
+        return "no_pac"
+    if source.has("injection") and pac_v == pac_s - {"injection"}:
+        return "without_pzt"
+    raise ValueError(f"scene {view.name!r}: its P_AC does not follow from {source.name!r}'s")
+
+
+def follows(view: Scene, source: Scene) -> bool:
+    """Return whether `view`'s data set can be written from `source`'s runs (`view_kind`; same materials)."""
+    try:
+        view_kind(view, source)
+    except ValueError:
+        return False
+    return tuple(view.materials) == tuple(source.materials)
+
+
+def _arrays(outs: list, period_s: float, material: str, seed: int) -> dict:
     data: dict = {}
 
     def cat(name, dtype, empty_shape):
@@ -45,7 +75,7 @@ def simulate_series(scene: Scene, material: str, seed: int, steps: int = 450) ->
         data[name] = cat(name, np.uint16, (0,))
     data["mocap_t_s"] = cat("mocap_t_s", np.float64, (0,))
     data["mocap_y_mm"] = cat("mocap_y_mm", np.float64, (0,))
-    data["period_end_s"] = np.array([o.t_start_s + rig.period_s for o in outs])
+    data["period_end_s"] = np.array([o.t_start_s + period_s for o in outs])
     for name in TRUTH:
         data[name] = np.array([getattr(o, name) for o in outs], dtype=bool if name == "gross_slip" else np.float64)
     data["material"] = np.array(material)
@@ -54,15 +84,42 @@ def simulate_series(scene: Scene, material: str, seed: int, steps: int = 450) ->
     return data
 
 
+def simulate_series(scene: Scene, material: str, seed: int, steps: int = 450, views=()) -> dict | list[dict]:
+    """Return one data-collection series as the dict of arrays stored in series_NNNNN.npz.
+
+    views: other scenes whose series of the same material and seed follow from this run
+    (`view_kind`: the same parameters and mechanics, the P_AC the same, without the PZT or
+    none, fewer slow channels): then return [this scene's dict, one per view], each exactly
+    what simulating that scene on its own gives, for one run's cost plus a second modal filter."""
+    kinds = [view_kind(v, scene) for v in views]
+    rig = Rig(scene, material, seed, pac_without_pzt="without_pzt" in kinds)
+    outs, off = [], []
+    for o in run_collection(rig, steps):
+        outs.append(o)
+        off.append(rig.last_pac_without_pzt)
+    data = _arrays(outs, rig.period_s, material, seed)
+    if not views:
+        return data
+    res = [data]
+    for v, kind in zip(views, kinds):
+        drop = {f: None for effect, fields in SLOW if not v.has(effect) for f in fields}
+        vo = [dataclasses.replace(o, **drop, pac_counts=o.pac_counts if kind == "same" else p if kind == "without_pzt"
+                                  else None, pzt_on=o.pzt_on and v.has("injection"))
+              for o, p in zip(outs, off)]
+        res.append(_arrays(vo, rig.period_s, material, seed))
+    return res
+
+
 def _worker(args) -> str:
-    scene, mats, dataset_seed, index, steps, out_dir = args
+    scene, mats, dataset_seed, index, steps, out_dir, views = args
     seed = series_seed(dataset_seed, index)
-    data = simulate_series(scene, mats[index % len(mats)], seed, steps)
-    path = Path(out_dir) / f"series_{index:05d}.npz"
-    tmp = path.with_name(path.stem + ".tmp.npz")
-    np.savez(tmp, **data)
-    os.replace(tmp, path)
-    return str(path)
+    data = simulate_series(scene, mats[index % len(mats)], seed, steps, [v for v, _ in views])
+    for d, where in zip([data] if not views else data, [out_dir] + [w for _, w in views]):
+        path = Path(where) / f"series_{index:05d}.npz"
+        tmp = path.with_name(path.stem + ".tmp.npz")
+        np.savez(tmp, **d)
+        os.replace(tmp, path)
+    return str(Path(out_dir) / f"series_{index:05d}.npz")
 
 
 def physics_fingerprint(scene: Scene) -> str:
@@ -78,32 +135,28 @@ def physics_fingerprint(scene: Scene) -> str:
 
 
 def write_dataset(scene: Scene, n_series: int, seed: int, out_dir: str | Path, *, materials=None,
-                  workers: int | None = None, steps: int = 450, progress: bool = True, client=None) -> Path:
+                  workers: int | None = None, steps: int = 450, progress: bool = True, client=None,
+                  views: dict | None = None) -> Path:
     """Write a data set directory (meta.json + series_NNNNN.npz) and return its path.
 
     client: a dask Client (`cluster.open_client`) to run the series on as tasks; else `workers`
-    local processes (default all cores; 1 runs in this process)."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    local processes (default all cores; 1 runs in this process).
+    views: {directory: scene} of data sets of the same size and seed that follow from this
+    scene's runs (`view_kind`, e.g. no_injection or electrodes_only from paper at the same
+    parameters), written in the same pass, each exactly as its own `write_dataset` would."""
+    views = [(v, str(Path(d))) for d, v in (views or {}).items()]
+    for v, _ in views:
+        view_kind(v, scene)
+        if not materials and tuple(v.materials) != tuple(scene.materials):
+            raise ValueError(f"scene {v.name!r} has other materials than {scene.name!r}; give `materials`")
     mats = tuple(materials) if materials else scene.materials
     for m in mats:
         if m not in scene.params["materials"]:
             raise ValueError(f"unknown material {m!r} (known: {', '.join(scene.params['materials'])})")
-    p = scene.params
-    meta = {
-        "format": "incipient-slip-dataset", "version": 1, "scene": scene.name, "scene_yaml": scene.yaml_text,
-        "seed": int(seed), "n_series": int(n_series), "materials": list(mats),
-        "injection": scene.has("injection"), "pac_rate_hz": p["timing"]["pac_rate_hz"],
-        "slow_rate_hz": p["timing"]["slow_rate_hz"], "mocap_rate_hz": p["timing"]["mocap_rate_hz"],
-        "period_s": p["timing"]["period_s"], "steps": int(steps),
-        "pac_pa_per_count": p["adc"]["pac_pa_per_count"], "pdc_pa_per_count": p["adc"]["pdc_pa_per_count"],
-        "created_by": "incipient_slip.sim.dataset.write_dataset",
-        "physics_fingerprint": physics_fingerprint(scene),
-        "series_material_rule": "materials[i % len(materials)]",
-        "series_seed_rule": "SeedSequence(seed, spawn_key=(i,)) -> int63",
-    }
-    (out / "meta.json").write_text(json.dumps(meta, indent=1))
-    jobs = [(scene, mats, seed, i, steps, str(out)) for i in range(n_series)]
+    for sc, where in [(scene, out_dir)] + views:
+        _write_meta(sc, n_series, seed, Path(where), mats, steps)
+    out = Path(out_dir)
+    jobs = [(scene, mats, seed, i, steps, str(out), views) for i in range(n_series)]
     if client is not None:
         for _ in as_done(client, _worker, [(job,) for job in jobs], desc=f"dataset {scene.name}",
                          progress=progress, key=f"series-{scene.name}"):
@@ -127,3 +180,21 @@ def write_dataset(scene: Scene, n_series: int, seed: int, out_dir: str | Path, *
     if bar:
         bar.close()
     return out
+
+
+def _write_meta(scene: Scene, n_series: int, seed: int, out: Path, mats: tuple, steps: int) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    p = scene.params
+    meta = {
+        "format": "incipient-slip-dataset", "version": 1, "scene": scene.name, "scene_yaml": scene.yaml_text,
+        "seed": int(seed), "n_series": int(n_series), "materials": list(mats),
+        "injection": scene.has("injection"), "pac_rate_hz": p["timing"]["pac_rate_hz"],
+        "slow_rate_hz": p["timing"]["slow_rate_hz"], "mocap_rate_hz": p["timing"]["mocap_rate_hz"],
+        "period_s": p["timing"]["period_s"], "steps": int(steps),
+        "pac_pa_per_count": p["adc"]["pac_pa_per_count"], "pdc_pa_per_count": p["adc"]["pdc_pa_per_count"],
+        "created_by": "incipient_slip.sim.dataset.write_dataset",
+        "physics_fingerprint": physics_fingerprint(scene),
+        "series_material_rule": "materials[i % len(materials)]",
+        "series_seed_rule": "SeedSequence(seed, spawn_key=(i,)) -> int63",
+    }
+    (out / "meta.json").write_text(json.dumps(meta, indent=1))

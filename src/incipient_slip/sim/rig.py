@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import adc, contact, stick_slip
+from . import adc, contact, mechanics, stick_slip
 from .ambient_noise import AmbientNoise
 from .electrodes import Electrodes
 from .feasibility import material_mu
@@ -27,11 +27,13 @@ from .fingertip_modes import ModalPath
 from .injection import PztSource
 from .mocap import mocap_samples
 from .pdc import pdc_counts
+from .sos import SosFilter
 from .scene import Scene, load_scene  # noqa: F401  (re-exported)
-from .stick_slip import ContactState, SimulationError
+from .stick_slip import ContactState, SimulationError, raise_status
 from .temperature import temperature_counts
 from .vibrotactile import bursts_pa
 
+MECHANICS = ("contact", "stick_slip", "mocap")   # the effects `run_mechanics` computes, all of them
 STREAMS = ("friction", "injection", "vibrotactile", "ambient", "electrodes", "pdc", "temperature", "mocap")
 
 
@@ -71,7 +73,10 @@ def series_seed(dataset_seed: int, series_index: int) -> int:
 class Rig:
     """A simulated rig for one material and seed; `step_period` advances one sampling period."""
 
-    def __init__(self, scene: Scene, material: str, seed: int):
+    def __init__(self, scene: Scene, material: str, seed: int, pac_without_pzt: bool = False):
+        """pac_without_pzt: also compute, each period, the P_AC the same period would have had
+        with the PZT absent (the no-injection scene's, exactly: same draws, its own modal filter
+        state) into `last_pac_without_pzt`, so one run gives both scenes' data (`sim.dataset`)."""
         if material not in scene.params["materials"]:
             raise ValueError(f"unknown material {material!r} (known: {', '.join(scene.params['materials'])})")
         self.scene, self.material, self.seed = scene, material, int(seed)
@@ -98,7 +103,21 @@ class Rig:
         self.k = ss["spring_n_per_mm"]
         self.step_mm = ss["actuator_travel_mm"] / ss["actuator_steps"]
         self.state = ContactState()
-        self.friction_force_n: float | None = None     # the normal force the friction limit follows (lagged)
+        ps = p["pre_slip"]
+        values = {"newton_per_kpa": c["newton_per_kpa"], "min_contact_force_n": c["min_contact_force_n"],
+                  "friction_limit_lag_s": ss["friction_limit_lag_s"], "period_s": self.period_s,
+                  "radius_mm": self.radius_mm, "e_star_mpa": self.e_star,
+                  "contact_saturation_radius_mm": c["contact_saturation_radius_mm"], "mu_series": self.mu_s,
+                  "mu_period_jitter": ss["mu_period_jitter"], "bulk_shear_n_per_mm": ps["bulk_shear_n_per_mm"],
+                  "bulk_ref_force_n": ps["bulk_ref_force_n"],
+                  "bulk_stiffening_exponent": ps["bulk_stiffening_exponent"], "g_star_int_mpa": self.g_star_int,
+                  "spring_n_per_mm": self.k, "rate_strengthening": ss["rate_strengthening"],
+                  "creep_reference_velocity_mm_s": ss["creep_reference_velocity_mm_s"],
+                  "restick_velocity_mm_s": ss["restick_velocity_mm_s"], "step_mm": self.step_mm,
+                  "mocap_rate_hz": tm["mocap_rate_hz"],
+                  "mocap_noise_mm": p["mocap"]["noise_mm"] if "mocap" in p else 0.0}
+        self.mech_params = np.array([float(values[name]) for name in mechanics.PARAMS])
+        mechanics.warm_up()                              # once per process, not in the first period
         self.k_period = 0
         self.prev_sar = 1.0
         has = scene.has
@@ -111,6 +130,18 @@ class Rig:
         self.n_slow_cols = has("electrodes") or has("pdc") or has("temperature")
         self.pzt_on = has("injection")
         self.pzt_db = scene.injection_db
+        if pac_without_pzt and not self.has_pac:
+            raise ValueError(f"scene {scene.name!r} has no P_AC effect; pac_without_pzt needs one")
+        self.filter_without_pzt = (SosFilter(np.zeros((len(p["fingertip_modes"]["freq_hz"]), 6)))
+                                   if pac_without_pzt and self.modes is not None else None)
+        self.pac_without_pzt = pac_without_pzt
+        self.last_pac_without_pzt: np.ndarray | None = None
+
+    @property
+    def friction_force_n(self) -> float | None:
+        """The normal force (N) the friction limit follows (F_N lagged), None before the first period."""
+        f = self.state.friction_force_n
+        return None if math.isnan(f) else f
 
     def set_injection(self, on: bool, intensity_db: float | None = None) -> None:
         """Switch the PZT noise on or off and set its intensity I (dB); needs the 'injection' effect."""
@@ -129,40 +160,12 @@ class Rig:
         if not math.isfinite(fn_kpa) or fn_kpa < 0.0:
             raise ValueError(f"step {k_step}: normal_force_kpa must be finite and >= 0, got {normal_force_kpa}")
         p = self.p
-        c = p["contact"]
-        fn_n = fn_kpa * c["newton_per_kpa"]
-        in_contact = fn_n >= c["min_contact_force_n"]
-        out_fn = fn_n if in_contact else 0.0
-        ss = p["stick_slip"]
-        lag = ss["friction_limit_lag_s"]
-        if self.friction_force_n is None or lag <= 0.0 or not in_contact:
-            self.friction_force_n = out_fn
-        else:
-            self.friction_force_n = out_fn + (self.friction_force_n - out_fn) * math.exp(-self.period_s / lag)
-        f_eff = self.friction_force_n
-        a_mm = (contact.contact_radius_mm(f_eff, self.radius_mm, self.e_star, c["contact_saturation_radius_mm"])
-                if in_contact else 0.0)
-        jit = 1.0 + ss["mu_period_jitter"] * self.rng["friction"].standard_normal()
-        mu_s = self.mu_s * jit
-        ps = p["pre_slip"]
-        k_bulk = contact.bulk_shear_stiffness_n_per_mm(ps["bulk_shear_n_per_mm"], out_fn, ps["bulk_ref_force_n"],
-                                                       ps["bulk_stiffening_exponent"], c["min_contact_force_n"])
-        dmax_int = contact.interfacial_max_mm(mu_s * f_eff, self.g_star_int, a_mm)
         st = self.state
-        sar, s_ratio, q, gross, slide_s = 1.0, 1.0, 0.0, False, 0.0
-        if self.scene.has("stick_slip"):
-            stick_slip.step_contact(st, friction_force_n=f_eff if in_contact else 0.0,
-                                    mu_s=mu_s, dmax_int=dmax_int, k_spring=self.k, k_bulk=k_bulk,
-                                    rate_b=ss["rate_strengthening"], v_ref=ss["creep_reference_velocity_mm_s"],
-                                    v_stick=ss["restick_velocity_mm_s"], period_s=self.period_s, step=k_step)
-            slide_s = st.slide_t1_s - st.slide_t0_s
-            gross = slide_s > 0.0
-            q = st.tangential_force_n
-            sar = st.stick_area_ratio
-            if st.sliding or not in_contact:
-                s_ratio = 0.0
-            else:
-                s_ratio = min(1.0, max(0.0, 1.0 - abs(q) / st.friction_limit_n))   # partial_slip.load_ratio_stick
+        status, out_fn, in_contact, a_mm, k_bulk, sar, s_ratio, q, gross, slide_s = mechanics.period(
+            st.values, self.mech_params, fn_kpa, self.rng["friction"].standard_normal(), self.scene.has("stick_slip"))
+        if status:
+            raise_status(status, k_step, self.friction_force_n if in_contact else 0.0,
+                         self.mu_s, k_bulk, st.values)
         slide_t0 = st.slide_t0_s
         t0 = k_step * self.period_s
         shear_strain = st.bulk_mm / p["fingertip_modes"]["pad_thickness_mm"] if "fingertip_modes" in p else 0.0
@@ -172,25 +175,38 @@ class Rig:
         if self.has_pac:
             n = self.n_pac
             x = np.zeros(n)
+            # the PZT-absent twin (pac_without_pzt): the same sums in the same order, minus the PZT term
+            off = np.zeros(n) if self.pac_without_pzt else None
             if self.band is not None:
                 unit = self.band.next(self.rng["injection"])       # drawn even when off: streams stay aligned
                 if self.pzt_on:
                     x += unit * (p["injection"]["pa_per_unit"] * 10.0 ** (self.pzt_db / 20.0))
             if self.scene.has("vibrotactile"):
-                x += bursts_pa(self.rng["vibrotactile"], n, self.fs, p["vibrotactile"], self.prev_sar - sar,
-                               slide_s, slide_t0, self.roughness, p["injection"]["pa_per_unit"])
+                bursts = bursts_pa(self.rng["vibrotactile"], n, self.fs, p["vibrotactile"], self.prev_sar - sar,
+                                   slide_s, slide_t0, self.roughness, p["injection"]["pa_per_unit"])
+                x += bursts
+                if off is not None:
+                    off += bursts
             if self.modes is not None:
                 n_split = min(n, int(math.ceil((slide_t0 + slide_s) * self.fs))) if gross else 0
-                if n_split:
-                    self.modes(x[:n_split], a_mm, 0.0, shear_strain, self.material_damping)
-                if n_split < n:
-                    self.modes(x[n_split:], a_mm, sar, shear_strain, self.material_damping)
+                for part, s_part in ((slice(0, n_split), 0.0), (slice(n_split, n), sar)):
+                    if part.stop > part.start:
+                        self.modes(x[part], a_mm, s_part, shear_strain, self.material_damping)
+                        if off is not None:                # the same coefficients, the twin's own state
+                            self.filter_without_pzt.filter_inplace(off[part], self.modes.filter.sos)
                 self.last_sar_seen["modes"] = self.modes.last_state[1]
             if self.ambient is not None:
-                x += self.ambient.next(self.rng["ambient"])
-            if not np.all(np.isfinite(x)):
-                raise SimulationError(f"step {k_step}: non-finite P_AC (F_N={fn_kpa} kPa, s={s_ratio})")
+                hum = self.ambient.next(self.rng["ambient"])
+                x += hum
+                if off is not None:
+                    off += hum
+            for buf in (x,) if off is None else (x, off):
+                if not np.all(np.isfinite(buf)):
+                    raise SimulationError(f"step {k_step}: non-finite P_AC (F_N={fn_kpa} kPa, s={s_ratio})")
             pac = adc.pac_to_counts(x, p["adc"]["pac_pa_per_count"], p["adc"]["pac_range_pa"])
+            if off is not None:
+                self.last_pac_without_pzt = adc.pac_to_counts(off, p["adc"]["pac_pa_per_count"],
+                                                              p["adc"]["pac_range_pa"])
         # slow channels share one 12-bit conversion: columns E1..E19, P_DC, T_AC, T_DC
         elec = pdc = tac = tdc = None
         if self.n_slow_cols:
@@ -233,3 +249,53 @@ class Rig:
         if actuator_step:
             st.actuator_mm += self.step_mm
         return out
+
+    def run_mechanics(self, normal_force_kpa, travel_rule: tuple[float, float, float], actuator_step: bool = True,
+                      stop_travel_mm: float = math.inf) -> dict[str, np.ndarray]:
+        """Run one period per F_N in `normal_force_kpa` in one compiled call and return their truth
+        as arrays: exactly the numbers of as many `step_period` calls (same state afterwards, same
+        random streams), for a scene whose effects are MECHANICS (contact, stick_slip, mocap).
+
+        Keys: `mechanics.COLUMNS` (object_y_mm, tangential_force_n, stick_area_ratio,
+        load_ratio_stick, gross_slip and sliding as bools, slide_q0_n, actuator_mm during the
+        period, friction_force_n after it, and travel_mm: the object's travel within the period
+        on its mocap samples, as `models.labels.gross_slip_travel_mm` reads it, with
+        `travel_rule` = (span, early, late) in s, that rule's constants) plus normal_force_kpa.
+        Stops after the first period whose travel_mm is >= stop_travel_mm (the arrays end there).
+        The mocap samples themselves are not returned."""
+        if set(self.scene.effects) != set(MECHANICS):
+            raise ValueError(f"run_mechanics needs a scene with the effects {', '.join(MECHANICS)}; "
+                             f"scene {self.scene.name!r} has {', '.join(self.scene.effects)}")
+        forces = np.array(normal_force_kpa, dtype=np.float64).reshape(-1)
+        bad = np.flatnonzero(~(np.isfinite(forces) & (forces >= 0.0)))
+        if bad.size:
+            raise ValueError(f"step {self.k_period + int(bad[0])}: normal_force_kpa must be finite and >= 0, "
+                             f"got {forces[bad[0]]}")
+        n = forces.size
+        streams = (self.rng["friction"], self.rng["mocap"])
+        saved = [g.bit_generator.state for g in streams]
+        friction = streams[0].standard_normal(n)            # the draws n step_period calls would make
+        mocap = streams[1].standard_normal((n, self.n_mocap))
+        out = np.empty((n, len(mechanics.COLUMNS)))
+        done, status, step = mechanics.run_series(self.state.values, self.mech_params, self.k_period, forces, friction,
+                                                  mocap, bool(actuator_step), float(stop_travel_mm),
+                                                  np.array(travel_rule, dtype=np.float64), out)
+        if done < n:                                        # stopped early: leave the streams where
+            for g, st in zip(streams, saved):               # `done` step_period calls would
+                g.bit_generator.state = st
+            streams[0].standard_normal(done)
+            streams[1].standard_normal((done, self.n_mocap))
+        self.k_period += done                               # the periods before a failing one count
+        self.last_sar_seen = {}
+        if done:
+            self.prev_sar = float(out[done - 1, mechanics.C_SAR])
+        if status >= mechanics.OUTPUT_STATUS:
+            name = mechanics.OUTPUT_CHECKED[status - mechanics.OUTPUT_STATUS]
+            raise SimulationError(f"step {step}: non-finite {name}")
+        if status:
+            raise_status(status, step, self.state.friction_force_n, self.mu_s, math.nan, self.state.values)
+        res = {name: out[:done, i] for i, name in enumerate(mechanics.COLUMNS)}
+        res["gross_slip"] = res["gross_slip"] != 0.0
+        res["sliding"] = res["sliding"] != 0.0
+        res["normal_force_kpa"] = forces[:done]
+        return res
