@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-load test-slow reproduce reproduce-quick bench bench-graph bench-cli bench-curve bench-bag bench-sim bench-grid bench-estimator bench-loop bench-loop-viewer bench-emulated-load clean
+.PHONY: demo test test-load test-slow reproduce reproduce-quick bench bench-graph bench-cli bench-curve bench-bag bench-sim bench-grid bench-estimation bench-estimator bench-loop bench-loop-viewer bench-emulated-load clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -85,6 +85,10 @@ bench-sim: $(STAMP)
 # SVR grid search in process vs a forked pool of 2 (`slip reproduce --jobs`), interleaved
 bench-grid: $(STAMP)
 	$(BIN)/python bench/bench_grid.py
+
+# the estimation study's pieces (windows, SVR grids) against main, alternating; DATA=runs/data: the full sets
+bench-estimation: $(STAMP)
+	$(BIN)/python bench/bench_estimation.py $(if $(DATA),--data $(DATA))
 
 bench-estimator: $(STAMP)
 	$(BIN)/python bench/bench_estimator.py

@@ -71,6 +71,18 @@ def test_series_features_match_phi_of_the_window_ending_at_each_period(fake_inje
         np.testing.assert_allclose(X[3], phi(stream[stop - spec.window_samples:stop], spec)[0], rtol=1e-4)
 
 
+def test_series_features_cut_exactly_the_windows_ending_at_each_period(fake_injection_dir):
+    """The windows are cut as a view of the stream (no index array): phi of them is phi of the
+    slices stream[stop - n:stop] stacked, bit for bit."""
+    s = ds.load_series(ds.series_paths(fake_injection_dir)[1])
+    spec = feature_spec("injection")
+    ends = s.period_end_s[valid_window_mask(s.period_end_s, spec, len(s.pac_counts))]
+    stops = np.round(ends * spec.rate_hz).astype(int)
+    assert len(stops) <= 512                    # one chunk: the same batch for both
+    sliced = np.stack([s.pac_counts[stop - spec.window_samples:stop] for stop in stops])
+    np.testing.assert_array_equal(series_features(s, spec, ends), phi(sliced, spec))
+
+
 def test_first_valid_window_needs_a_full_window_of_data():
     spec = feature_spec("injection", window_s=1.0)
     mask = valid_window_mask(np.array([0.5, 1.0, 1.5]), spec, 10_000)

@@ -29,6 +29,21 @@ def test_model_file_round_trip_predicts_identically(tmp_path, kind):
     assert "numpy" in back.header["versions"]
 
 
+@pytest.mark.parametrize("kernel", ["rbf", "linear", "poly"])
+def test_prediction_of_many_rows_in_blocks_is_each_row_s_own(kernel):
+    """predict_raw expands PREDICT_ROWS rows at a time (no 1 GB temporaries on a held-out set):
+    every row equals that row predicted alone, to the last bits BLAS rounds differently with the
+    batch size (1e-12 relative; it also rounds them differently with its thread count)."""
+    from incipient_slip.models.modelfile import PREDICT_ROWS
+    m = _model()
+    m.kernel = kernel
+    X = np.random.default_rng(2).normal(size=(2 * PREDICT_ROWS + 5, m.spec.n_features))
+    got = m.predict_raw(X)
+    assert got.shape == (len(X),)
+    alone = np.array([m.predict_raw(X[i])[0] for i in range(0, len(X), 97)])
+    np.testing.assert_allclose(got[::97], alone, rtol=1e-12, atol=1e-12)
+
+
 def test_model_file_holds_no_pickled_objects(tmp_path):
     path = save_model(_model(), tmp_path / "m.npz")
     with np.load(path, allow_pickle=False) as data:   # would raise on an object array

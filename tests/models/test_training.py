@@ -101,6 +101,62 @@ def test_grid_search_choice_is_the_same_in_process_on_a_local_pool_and_on_1_and_
     assert grid_search_svr(X, y, g, grid, progress=False, workers=2) == local     # a forked local pool
 
 
+def test_a_shared_precomputed_rbf_kernel_gives_libsvm_rbf_dual_coefficients_bit_for_bit(fake_injection_dir):
+    """The grid fits RBF candidates on one kernel matrix per (fold, gamma): libsvm must solve the
+    same problem, so the support, dual coefficients and intercept are equal (==), and the
+    predictions equal to the last bits (numpy forms the validation kernel, not libsvm)."""
+    from sklearn.svm import SVR
+    from incipient_slip.models.training import _rbf_kernels, _standardize, grouped_folds, svr_grid
+    ws = load_windows(fake_injection_dir, feature_spec("injection"), progress=False)
+    X, y = ws.X.astype(np.float64)[:700], ws.y[:700]
+    mean, scale = _standardize(X)
+    Z = (X - mean) / scale
+    tr, va = next(grouped_folds(ws.series[:700], 3))
+    for p in svr_grid(X.shape[1])[:24:5]:
+        assert p["kernel"] == "rbf"
+        own = SVR(cache_size=500, **p).fit(Z[tr], y[tr])
+        K, K_va = _rbf_kernels(Z[tr], Z[va], p["gamma"])
+        pre = SVR(kernel="precomputed", cache_size=500, C=p["C"], epsilon=p["epsilon"]).fit(K, y[tr])
+        np.testing.assert_array_equal(pre.support_, own.support_)
+        np.testing.assert_array_equal(pre.dual_coef_, own.dual_coef_)
+        np.testing.assert_array_equal(pre.intercept_, own.intercept_)
+        np.testing.assert_allclose(pre.predict(K_va), own.predict(Z[va]), rtol=0, atol=1e-12)
+
+
+def test_grid_rows_and_choice_equal_one_libsvm_fit_per_candidate_and_fold(fake_injection_dir):
+    """The grid's tasks (a shared kernel per gamma and fold) give the rows of fitting every
+    candidate on every fold by itself; RMSEs to 1e-12 relative (the validation kernel's last
+    bits, see above; 6e-15 on the study's 2000-window grids), and the same choice."""
+    from sklearn.svm import SVR
+    from incipient_slip.models.training import _standardize, grid_search_svr, grouped_folds, svr_grid
+    ws = load_windows(fake_injection_dir, feature_spec("injection"), progress=False)
+    X, y, g = ws.X.astype(np.float64)[:500], ws.y[:500], ws.series[:500]
+    grid = svr_grid(X.shape[1])
+    best, rows = grid_search_svr(X, y, g, grid, progress=False)
+    mean, scale = _standardize(X)
+    Z = (X - mean) / scale
+    folds = list(grouped_folds(g, 3))
+    ref = [np.sqrt(np.mean([np.mean((np.clip(SVR(cache_size=500, **p).fit(Z[tr], y[tr]).predict(Z[va]), 0, 1)
+                                     - y[va]) ** 2) for tr, va in folds])) for p in grid]
+    assert [r["params"] for r in rows] == grid
+    np.testing.assert_allclose([r["rmse"] for r in rows], ref, rtol=1e-12, atol=0)
+    assert best == grid[int(np.argmin(ref))]
+
+
+def test_window_sets_read_once_for_many_specs_on_a_pool_equal_load_windows_per_spec(fake_injection_dir):
+    from incipient_slip.models.training import load_window_sets
+    specs = [feature_spec(m) for m in ("injection", "e19", "e1")]
+    for after_slip in ("zero", "drop"):
+        sets = load_window_sets(fake_injection_dir, specs, progress=False, after_slip=after_slip, workers=2)
+        for spec, got in zip(specs, sets):
+            one = load_windows(fake_injection_dir, spec, progress=False, after_slip=after_slip)
+            assert got.spec == spec and got.data_hash == one.data_hash
+            assert got.skipped_series == one.skipped_series
+            for col in ("X", "y", "series", "material", "period", "stick_area_ratio", "load_ratio_stick",
+                        "tangential_force_n", "normal_force_kpa", "post_slip"):
+                np.testing.assert_array_equal(getattr(got, col), getattr(one, col))
+
+
 def test_with_a_cache_a_repeated_grid_search_and_fit_train_nothing_and_give_the_same(fake_injection_dir, tmp_path,
                                                                                      monkeypatch):
     from sklearn.svm import SVR

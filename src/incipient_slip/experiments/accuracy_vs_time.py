@@ -112,7 +112,7 @@ def fit_point(sweep, label, train, test, kind, params, max_train, n_components=1
 
 def run_sweeps(data_dir: Path, quick: bool = False, progress: bool = True, workers: int = 1) -> dict:
     """Return {"points": [...], "scale": {...}} for the injection method on data_dir."""
-    from incipient_slip.models.training import (grid_search_svr, held_out_series, load_windows,
+    from incipient_slip.models.training import (grid_search_svr, held_out_series, load_window_sets,
                                                 split_train_test, subsample_rows, svr_grid)
     t_all = time.perf_counter()
     base = feature_spec("injection")
@@ -125,7 +125,14 @@ def run_sweeps(data_dir: Path, quick: bool = False, progress: bool = True, worke
     sizes = [500, 1500] if quick else [500, 1000, 2000, 4000, 8000]
     hgb_max = 3000 if quick else 20000
     longest = max(windows)
-    ws = load_windows(data_dir, base, min_window_s=longest, progress=progress)
+    jobs = [("window", f"T = {T:g} s", replace(base, window_s=T)) for T in windows]
+    jobs += [("bins", f"bin {b:g} Hz", replace(base, bin_hz=b)) for b in bins]
+    jobs += [("band", f"band {lo:g}-{hi:g} Hz", replace(base, band_hz=(lo, hi))) for lo, hi in bands]
+    # every spec's windows in one pass over the series (each file read once), on `workers` processes
+    specs = list({spec.spec_hash(): spec for spec in [base] + [spec for _, _, spec in jobs]}.values())
+    sets = dict(zip((spec.spec_hash() for spec in specs),
+                    load_window_sets(data_dir, specs, min_window_s=longest, progress=progress, workers=workers)))
+    ws = sets[base.spec_hash()]
     test_series = held_out_series(ws.series_materials())
     train, test = split_train_test(ws, test_series)
     g = subsample_rows(len(train.y), grid_max)
@@ -144,15 +151,11 @@ def run_sweeps(data_dir: Path, quick: bool = False, progress: bool = True, worke
         if spec.spec_hash() == base.spec_hash():
             tr, te = train, test
         else:
-            w = load_windows(data_dir, spec, min_window_s=longest, progress=False)
-            tr, te = split_train_test(w, test_series)
+            tr, te = split_train_test(sets.pop(spec.spec_hash()), test_series)
         p = dict(rbf_params, gamma=rbf_params["gamma"] * base.n_features / spec.n_features)
         done[spec.spec_hash()] = fit_point(sweep, label, tr, te, "svr", p, max_train)
         return done[spec.spec_hash()]
 
-    jobs = [("window", f"T = {T:g} s", replace(base, window_s=T)) for T in windows]
-    jobs += [("bins", f"bin {b:g} Hz", replace(base, bin_hz=b)) for b in bins]
-    jobs += [("band", f"band {lo:g}-{hi:g} Hz", replace(base, band_hz=(lo, hi))) for lo, hi in bands]
     for sweep, label, spec in tqdm(jobs, desc="sweeps", disable=not progress):
         points.append(spec_point(sweep, label, spec))
     kinds = [("svr", "exact SVR", max_train, 0), ("nystroem", "Nystroem 300 + ridge", None, 300),

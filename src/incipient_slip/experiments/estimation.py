@@ -50,7 +50,7 @@ def run(settings: Settings) -> dict:
     max_train = settings.option("max_train", settings.pick(quick=1000, full=8000))
     grid_max = settings.pick(quick=600, full=2000)
     dirs = study_datasets(settings, n, steps)
-    windows = load_all_windows(dirs, progress=settings.progress)
+    windows = load_all_windows(dirs, progress=settings.progress, workers=settings.jobs)
     kw = dict(quick=settings.quick, max_train=max_train, grid_max=grid_max, windows=windows,
               progress=settings.progress, workers=settings.jobs)
     study = run_study(dirs, **kw)

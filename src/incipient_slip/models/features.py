@@ -212,10 +212,9 @@ def series_features(series, spec: FeatureSpec, end_s: np.ndarray | None = None,
         if (stops - n < 0).any() or (stops > len(stream)).any():
             raise ValueError("window outside the P_AC stream; filter with valid_window_mask")
         out = np.empty((len(stops), spec.n_features), dtype=np.float32)
-        offsets = np.arange(-n, 0)
+        windows = np.lib.stride_tricks.sliding_window_view(stream, n)    # a view: row i = stream[i:i + n]
         for a in range(0, len(stops), chunk):
-            idx = stops[a:a + chunk, None] + offsets
-            out[a:a + chunk] = phi_spectrum(stream[idx], spec)
+            out[a:a + chunk] = phi_spectrum(windows[stops[a:a + chunk] - n], spec)
         return out
     counts = series.electrode_counts
     if (stops - n < 0).any() or (stops > len(counts)).any():

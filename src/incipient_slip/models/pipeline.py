@@ -15,7 +15,8 @@ from . import dataset as ds
 from .evaluation import SeriesScores, paired_tests, series_scores
 from .features import METHODS, feature_spec
 from .modelfile import Model
-from .training import WindowSet, held_out_series, load_windows, split_train_test, train_model
+from .training import (WindowSet, forked_map, held_out_series, load_window_sets, split_train_test,
+                       train_model)
 
 SCENE_OF_METHOD = {m: ("no_injection" if m == "vibrotactile" else "paper") for m in METHODS}
 
@@ -57,12 +58,29 @@ class StudyResult:
                 "timings": self.timings}
 
 
-def load_all_windows(data_dirs: dict, methods=METHODS, window_s: float = 1.0, progress: bool = True) -> dict:
+def load_all_windows(data_dirs: dict, methods=METHODS, window_s: float = 1.0, progress: bool = True,
+                     workers: int = 1) -> dict:
     """Return {method: WindowSet} under the paper's rule (all windows; filter post_slip for the
-    incipient range)."""
-    return {m: load_windows(data_dirs[SCENE_OF_METHOD[m]], feature_spec(m, window_s=window_s),
-                            progress=progress)
-            for m in tqdm(methods, desc="features", disable=not progress, leave=False)}
+    incipient range): each data set's series read once for all its methods, by `workers` processes."""
+    out = {}
+    for scene in dict.fromkeys(SCENE_OF_METHOD[m] for m in methods):
+        ms = [m for m in methods if SCENE_OF_METHOD[m] == scene]
+        sets = load_window_sets(data_dirs[scene], [feature_spec(m, window_s=window_s) for m in ms],
+                                progress=progress, workers=workers)
+        out.update(zip(ms, sets))
+    return {m: out[m] for m in methods}
+
+
+def _train_and_predict(train: WindowSet, test: WindowSet, kw: dict):
+    tr = train_model(train, **kw)
+    return tr, tr.model.predict(test.X)
+
+
+def _pool_task(shared: tuple, method: str):
+    from .estimator_core import limit_blas_threads
+    splits, kw = shared
+    with limit_blas_threads(1):          # one core per worker
+        return method, _train_and_predict(*splits[method], dict(kw, progress=False))
 
 
 def run_study(data_dirs: dict, methods=METHODS, kind: str = "svr", quick: bool = False,
@@ -73,13 +91,14 @@ def run_study(data_dirs: dict, methods=METHODS, kind: str = "svr", quick: bool =
 
     data_dirs: {"paper": dir with injection, "no_injection": dir without}.
     windows: preloaded `load_all_windows` result (paper's rule), reused across label policies.
-    client: a dask Client for the grid searches' fits (training.grid_search_svr); workers: local
-    processes for them instead (the same models: every fit is deterministic).
+    client: a dask Client for the grid searches' fits (training.grid_search_svr); workers: train
+    that many methods at a time in forked local processes instead, and read the windows with as
+    many (the same models: every fit is deterministic).
     """
     t0 = time.perf_counter()
     methods = list(methods)
     if windows is None:
-        windows = load_all_windows(data_dirs, methods, window_s, progress)
+        windows = load_all_windows(data_dirs, methods, window_s, progress, workers)
     windows = {m: windows[m] for m in methods}
     if after_slip == "drop":
         windows = {m: w.subset(~w.post_slip) for m, w in windows.items()}
@@ -94,13 +113,19 @@ def run_study(data_dirs: dict, methods=METHODS, kind: str = "svr", quick: bool =
                                   "generate both scenes with the same seed and series count")
         ref = {**other, **ref}
     test_series = held_out_series(ref)
-    results = {}
     timings = {"features_s": time.perf_counter() - t0}
-    for m in tqdm(methods, desc="train", disable=not progress, leave=False):
-        train, test = split_train_test(windows[m], test_series)
-        tr = train_model(train, kind, max_train=max_train, grid_max=grid_max, quick=quick,
-                         progress=progress, client=client, workers=workers)
-        pred = tr.model.predict(test.X)
+    splits = {m: split_train_test(windows[m], test_series) for m in methods}
+    kw = dict(kind=kind, max_train=max_train, grid_max=grid_max, quick=quick)
+    if client is None and workers > 1 and len(methods) > 1:
+        # the methods on `workers` forked processes (windows inherited), each grid in its process
+        trained = dict(tqdm(forked_map(_pool_task, list(splits), workers, (splits, kw)), total=len(splits),
+                            desc="train", disable=not progress, leave=False))
+    else:
+        trained = {m: _train_and_predict(*splits[m], dict(kw, progress=progress, client=client, workers=workers))
+                   for m in tqdm(methods, desc="train", disable=not progress, leave=False)}
+    results = {}
+    for m in methods:
+        (tr, pred), test = trained[m], splits[m][1]
         sc = series_scores(m, test.y, pred, test.series, test.material)
         tr.model.header["test_series"] = [int(v) for v in test_series]
         tr.model.header["test_rmse_mean"] = float(sc.rmse.mean())

@@ -68,10 +68,37 @@ class WindowSet:
 
 AFTER_SLIP = ("zero", "drop")
 
+_INHERITED: object = None   # what forked_map's workers inherit instead of receiving it pickled
+
+
+def _inherited_call(task):
+    fn, item = task
+    return fn(_INHERITED, item)
+
+
+def forked_map(fn, items, workers: int, inherited=None, chunksize: int = 1):
+    """Yield fn(inherited, item) for each item, in order, from `workers` forked processes (in this
+    process when workers <= 1). `inherited` (windows, arrays) is copied into the workers by the
+    fork, not pickled per task; fn must be a module-level function."""
+    global _INHERITED
+    if workers <= 1:
+        for item in items:
+            yield fn(inherited, item)
+        return
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+    _INHERITED = inherited
+    try:
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as pool:
+            yield from pool.map(_inherited_call, [(fn, item) for item in items], chunksize=chunksize)
+    finally:
+        _INHERITED = None
+
 
 def load_windows(data_dir: str | Path, spec: FeatureSpec, min_window_s: float | None = None,
-                 progress: bool = True, after_slip: str = "zero", label: str = "pseudo") -> WindowSet:
-    """Return every labelled window of a data set for `spec` (one series file at a time).
+                 progress: bool = True, after_slip: str = "zero", label: str = "pseudo",
+                 workers: int = 1) -> WindowSet:
+    """Return every labelled window of a data set for `spec` (`load_window_sets` of one spec).
 
     min_window_s: keep only windows that would also be complete for a window of this length
     (used to compare different T on the same samples).
@@ -82,36 +109,54 @@ def load_windows(data_dir: str | Path, spec: FeatureSpec, min_window_s: float | 
     With a cache on (`incipient_slip.cache`) the windows are stored under a key of the data set's
     content hash, the spec, these options and the code of models/, and read back next time.
     """
+    return load_window_sets(data_dir, [spec], min_window_s, progress, after_slip, label, workers)[0]
+
+
+def load_window_sets(data_dir: str | Path, specs, min_window_s: float | None = None, progress: bool = True,
+                     after_slip: str = "zero", label: str = "pseudo", workers: int = 1) -> list[WindowSet]:
+    """Return `load_windows` of each spec, reading each series file once for all of them.
+
+    workers: read the series in this many forked processes (1: in process); the windows are
+    the same, in series order, wherever they were computed."""
     if label not in LABELS:
         raise ValueError(f"label {label!r} unknown; expected one of {', '.join(LABELS)}")
     if after_slip not in AFTER_SLIP:
         raise ValueError(f"after_slip {after_slip!r} unknown; expected one of {AFTER_SLIP}")
+    specs = list(specs)
+    meta = ds.read_meta(data_dir)
+    for spec in specs:
+        if spec.stream == "pac" and spec.injection is not None and bool(meta.get("injection", True)) != spec.injection:
+            raise ds.DatasetError(
+                f"{data_dir}: data set has injection={meta.get('injection')} but method "
+                f"{spec.method} needs injection={spec.injection} (scene 'paper' for injection, "
+                "'no_injection' for vibrotactile)")
+    computed: list = []
+
+    def compute() -> list[WindowSet]:
+        if not computed:
+            computed.extend(_load_window_sets(data_dir, specs, min_window_s, progress, after_slip, label, workers))
+        return computed
     from .. import cache
     if cache.root() is None:
-        return _load_windows(data_dir, spec, min_window_s, progress, after_slip, label)
-    key = cache.digest("windows-1", ds.dataset_hash(data_dir), repr(spec), min_window_s, after_slip, label,
-                       cache.source_version(Path(__file__).parent))
-    return cache.cached("windows", key, lambda: _load_windows(data_dir, spec, min_window_s, progress, after_slip,
-                                                              label))
+        return compute()
+    data_hash, code = ds.dataset_hash(data_dir), cache.source_version(Path(__file__).parent)
+    return [cache.cached("windows", cache.digest("windows-1", data_hash, repr(spec), min_window_s, after_slip,
+                                                 label, code), lambda i=i: compute()[i])
+            for i, spec in enumerate(specs)]
 
 
-def _load_windows(data_dir, spec: FeatureSpec, min_window_s, progress: bool, after_slip: str,
-                  label: str) -> WindowSet:
-    meta = ds.read_meta(data_dir)
-    if spec.stream == "pac" and spec.injection is not None and bool(meta.get("injection", True)) != spec.injection:
-        raise ds.DatasetError(
-            f"{data_dir}: data set has injection={meta.get('injection')} but method "
-            f"{spec.method} needs injection={spec.injection} (scene 'paper' for injection, "
-            "'no_injection' for vibrotactile)")
-    paths = ds.series_paths(data_dir)
-    parts, skipped = [], []
-    for path in tqdm(paths, desc=f"phi {spec.method} {Path(data_dir).name}", unit="series",
-                     disable=not progress, leave=False):
-        s = ds.load_series(path)
-        lab = label_series(s)
-        if lab.gross_slip_index < 0:
-            skipped.append(s.index)
-            continue
+def _series_windows(options: tuple, path) -> tuple:
+    """Return (series index, None) for a series without gross slip, else (series index, one
+    tuple of columns per spec, None where the spec keeps no window of it); options: (specs,
+    min_window_s, after_slip, label)."""
+    specs, min_window_s, after_slip, label = options
+    s = ds.load_series(path)
+    lab = label_series(s)
+    if lab.gross_slip_index < 0:
+        return s.index, None
+    target = training_labels(s, lab, label)
+    parts = []
+    for spec in specs:
         n_stream = len(s.pac_counts) if spec.stream == "pac" else len(s.electrode_counts)
         ok = valid_window_mask(s.period_end_s, spec, n_stream)
         if min_window_s is not None:
@@ -120,17 +165,35 @@ def _load_windows(data_dir, spec: FeatureSpec, min_window_s, progress: bool, aft
             ok &= np.arange(len(ok)) <= lab.gross_slip_index
         k = np.flatnonzero(ok)
         if len(k) == 0:
+            parts.append(None)
             continue
         X = series_features(s, spec, s.period_end_s[k])
-        parts.append((X, training_labels(s, lab, label)[k], np.full(len(k), s.index),
-                      np.full(len(k), s.material, dtype=object), k, s.stick_area_ratio[k],
-                      s.load_ratio_stick[k], s.tangential_force_n[k], s.normal_force_kpa[k],
-                      k > lab.gross_slip_index))
-    if not parts:
-        raise ds.DatasetError(f"{data_dir}: no labelled windows (no series with gross slip?)")
-    cols = [np.concatenate(c) for c in zip(*parts)]
-    cols[3] = cols[3].astype(str)
-    return WindowSet(*cols, spec=spec, data_hash=ds.dataset_hash(data_dir), skipped_series=skipped)
+        parts.append((X, target[k], np.full(len(k), s.index), np.full(len(k), s.material, dtype=object), k,
+                      s.stick_area_ratio[k], s.load_ratio_stick[k], s.tangential_force_n[k],
+                      s.normal_force_kpa[k], k > lab.gross_slip_index))
+    return s.index, parts
+
+
+def _load_window_sets(data_dir, specs, min_window_s, progress: bool, after_slip: str, label: str,
+                      workers: int) -> list[WindowSet]:
+    paths = ds.series_paths(data_dir)
+    desc = f"phi {'+'.join(s.method for s in specs)} {Path(data_dir).name}"
+    per_series = []
+    with tqdm(total=len(paths), desc=desc, unit="series", disable=not progress, leave=False) as bar:
+        for r in forked_map(_series_windows, paths, workers, (specs, min_window_s, after_slip, label), chunksize=8):
+            per_series.append(r)
+            bar.update()
+    skipped = [index for index, parts in per_series if parts is None]
+    data_hash = ds.dataset_hash(data_dir)
+    out = []
+    for j, spec in enumerate(specs):
+        parts = [p[j] for _, p in per_series if p is not None and p[j] is not None]
+        if not parts:
+            raise ds.DatasetError(f"{data_dir}: no labelled windows (no series with gross slip?)")
+        cols = [np.concatenate(c) for c in zip(*parts)]
+        cols[3] = cols[3].astype(str)
+        out.append(WindowSet(*cols, spec=spec, data_hash=data_hash, skipped_series=list(skipped)))
+    return out
 
 
 def _rank(seed: int, index: int) -> str:
@@ -204,72 +267,101 @@ def _fit_svr(Z, y, params, cache_mb=500):
                         lambda: SVR(cache_size=cache_mb, **p).fit(Z, y))
 
 
-def _fold_mse(Z, y, tr, va, params, zy_key: str = "") -> float:
-    """Return the validation MSE of one SVR candidate fitted on one grouped fold (a grid task);
-    cached by (`zy_key` = the digest of Z and y, the fold, the parameters) when a cache is on."""
+def _sq_distances(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Return |a|^2 + |b|^2 - 2 a.b for all row pairs: libsvm's RBF distance, term for term."""
+    return np.einsum("ij,ij->i", A, A)[:, None] + np.einsum("ij,ij->i", B, B)[None] - 2.0 * (A @ B.T)
+
+
+def _rbf_kernels(Z_tr, Z_va, gamma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Return the RBF kernel of a fold's training rows with themselves and of its validation rows
+    with them, as libsvm forms it: exp(-gamma (|a|^2 + |b|^2 - 2 a.b)), the diagonal exactly 1."""
+    K = np.exp(-gamma * _sq_distances(Z_tr, Z_tr))
+    np.fill_diagonal(K, 1.0)
+    return K, np.exp(-gamma * _sq_distances(Z_va, Z_tr))
+
+
+def _group_mse(Z, y, tr, va, cells, zy_key: str = "") -> list[float]:
+    """Return the validation MSE of each SVR candidate of one grid task (`grid_tasks`: one fold,
+    candidates sharing a kernel), fitted on the fold's training rows.
+
+    RBF candidates of one gamma share one kernel matrix: it is computed once, at the first fit
+    that needs it, and each candidate is fitted with `kernel="precomputed"` - the same libsvm
+    solver on the same float32 kernel cache as libsvm's own RBF, so the same dual coefficients
+    (checked bit for bit in tests/models/test_training.py) in about a third of the time. Other
+    kernels are fitted as they are. Each cell is cached by (`zy_key` = the digest of Z and y,
+    the fold, its parameters) when a cache is on."""
     import sklearn
     from sklearn.svm import SVR
 
     from .. import cache
+    kernels: list = []
 
-    def mse():
-        m = SVR(cache_size=500, **dict(params)).fit(Z[tr], y[tr])
-        return float(np.mean((np.clip(m.predict(Z[va]), 0, 1) - y[va]) ** 2))
+    def fit(p: dict) -> float:
+        if p["kernel"] == "rbf":
+            if not kernels:
+                kernels.extend(_rbf_kernels(Z[tr], Z[va], p["gamma"]))
+            rest = {k: v for k, v in p.items() if k not in ("kernel", "gamma")}
+            pred = SVR(kernel="precomputed", cache_size=500, **rest).fit(kernels[0], y[tr]).predict(kernels[1])
+        else:
+            pred = SVR(cache_size=500, **p).fit(Z[tr], y[tr]).predict(Z[va])
+        return float(np.mean((np.clip(pred, 0, 1) - y[va]) ** 2))
+    if len({p.get("gamma") for p in cells if p["kernel"] == "rbf"}) > 1:
+        raise ValueError("one grid task shares one RBF gamma")
     if not zy_key or cache.root() is None:
-        return mse()
-    return cache.cached("svr-fold", cache.digest("svr-fold-1", sklearn.__version__, zy_key, tr, va, dict(params)), mse)
+        return [fit(dict(p)) for p in cells]
+    return [cache.cached("svr-fold", cache.digest("svr-fold-2", sklearn.__version__, zy_key, tr, va, dict(p)),
+                         lambda p=dict(p): fit(p)) for p in cells]
 
 
-_SHARED: tuple = ()      # (Z, y, their cache key) of the grid search a forked pool's workers inherit
+def grid_tasks(grid: list[dict], n_folds: int) -> list[tuple[int, list[int]]]:
+    """Return the grid's tasks (fold, [candidate index, ...]): per fold, the RBF candidates of one
+    gamma together (they share a kernel matrix), every other candidate alone. The single
+    candidates (linear: the slowest fits, seconds each at C = 1) come first, so that a pool ends
+    on the short shared-kernel tasks."""
+    single, shared = [], []
+    for j in range(n_folds):
+        by_gamma: dict = {}
+        for i, p in enumerate(grid):
+            if p.get("kernel") == "rbf":
+                by_gamma.setdefault(p["gamma"], []).append(i)
+            else:
+                single.append((j, [i]))
+        shared.extend((j, idx) for idx in by_gamma.values())
+    return single + shared
 
 
-def _shared_fold_mse(cell) -> float:
-    params, tr, va = cell
-    Z, y, zy_key = _SHARED
-    return _fold_mse(Z, y, tr, va, params, zy_key)
-
-
-def _pool_mse(Z, y, zy_key, cells, workers: int, bar) -> list[float]:
-    """Return the fold MSEs of `cells` from `workers` forked processes (Z and y inherited, not sent)."""
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
-    global _SHARED
-    _SHARED = (Z, y, zy_key)
-    try:
-        with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as pool:
-            out = []
-            for v in pool.map(_shared_fold_mse, cells):
-                out.append(v)
-                bar.update()
-            return out
-    finally:
-        _SHARED = ()
+def _task_mse(shared: tuple, task) -> list[float]:
+    Z, y, zy_key, grid, folds = shared
+    j, idx = task
+    return _group_mse(Z, y, *folds[j], [grid[i] for i in idx], zy_key)
 
 
 def grid_search_svr(X, y, groups, grid, n_folds=3, progress=True, desc="grid", client=None, workers: int = 1):
     """Return (best params, rows of {params, rmse}) by grouped k-fold RMSE on standardized X.
 
-    client: a dask Client (`cluster.open_client`): the candidate x fold fits run there as tasks.
-    workers: without a client, fit the cells in this many forked local processes (1: in process).
+    The candidate x fold fits run as `grid_tasks` (RBF candidates of one gamma share a kernel
+    matrix per fold). client: a dask Client (`cluster.open_client`): the tasks run there.
+    workers: without a client, run them in this many forked local processes (1: in process).
     Every fit is deterministic, so the rows and the choice do not depend on where they ran."""
     mean, scale = _standardize(X)
     Z = (X - mean) / scale
     folds = list(grouped_folds(groups, n_folds))
-    cells = [(params, tr, va) for params in grid for tr, va in folds]
+    tasks = grid_tasks(grid, len(folds))
     from .. import cache
     zy_key = cache.digest(Z, y) if cache.root() is not None else ""
-    if client is None and workers > 1:
-        with tqdm(total=len(cells), desc=desc, unit="fit", disable=not progress, leave=False) as bar:
-            mse = _pool_mse(Z, y, zy_key, cells, workers, bar)
-    elif client is None:
-        mse = [_fold_mse(Z, y, tr, va, params, zy_key)
-               for params, tr, va in tqdm(cells, desc=desc, unit="fit", disable=not progress, leave=False)]
-    else:
-        Zf, yf = client.scatter([Z, y])
-        mse = map_tasks(client, _fold_mse, [(Zf, yf, tr, va, params) for params, tr, va in cells],
-                        desc=desc, progress=progress, key="svr-fit", leave=False)
-    k = len(folds)
-    rows = [{"params": params, "rmse": float(np.sqrt(np.mean(mse[i * k:(i + 1) * k])))}
+    with tqdm(total=len(grid) * len(folds), desc=desc, unit="fit", disable=not progress or client is not None,
+              leave=False) as bar:
+        if client is not None:
+            Zf, yf = client.scatter([Z, y])
+            mse = map_tasks(client, _group_mse, [(Zf, yf, *folds[j], [grid[i] for i in idx]) for j, idx in tasks],
+                            desc=desc, progress=progress, key="svr-fit", leave=False)
+        else:
+            mse = []
+            for v in forked_map(_task_mse, tasks, workers, (Z, y, zy_key, grid, folds)):
+                mse.append(v)
+                bar.update(len(v))
+    per_cell = {(i, j): v for (j, idx), values in zip(tasks, mse) for i, v in zip(idx, values)}
+    rows = [{"params": params, "rmse": float(np.sqrt(np.mean([per_cell[i, j] for j in range(len(folds))])))}
             for i, params in enumerate(grid)]
     best = min(rows, key=lambda r: r["rmse"])
     return best["params"], rows
