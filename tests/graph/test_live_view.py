@@ -8,7 +8,6 @@ import json
 import os
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -285,41 +284,6 @@ def test_the_bridge_receives_a_topic_only_while_a_client_watches_it(graph, probe
     assert commands.subscriber_count() == 0
     client.close()                    # the last client of the topic left: so does the bridge
     probe.until(lambda: estimates.subscriber_count() == 0, procs=[proc], what="the bridge unsubscribed")
-
-
-def main_thread_wakeups(pid: int) -> int:
-    """Times the process's main thread went to sleep by itself (voluntary context switches)."""
-    with open(f"/proc/{pid}/task/{pid}/status") as f:
-        return next(int(line.split()[1]) for line in f if line.startswith("voluntary_ctxt_switches"))
-
-
-@pytest.mark.skipif(not os.path.exists("/proc/self/task"), reason="per-thread switch counts are Linux's")
-def test_the_bridge_reads_the_graph_in_batches_not_one_wake_up_per_message(graph, probe, batch_ms=100):
-    """(With batch_ms:=0, as before batches, the main thread woke 124 times here, once 8: on a
-    busy machine messages queue by themselves; with batches the bound holds at any load.)"""
-    estimates = probe.node.create_publisher(SlipEstimate)
-    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.foxglove_bridge", "port:=0",
-                        f"batch_ms:={batch_ms}"])
-    url, _ = served_url(proc)
-    first = FoxgloveClient(url)       # see the 0.30.3 note in the slip view test below
-    first.until(lambda: SlipEstimate.TOPIC in first.topics())
-    first.close()
-    client = FoxgloveClient(url)
-    client.until(lambda: SlipEstimate.TOPIC in client.topics())
-    client.subscribe([SlipEstimate.TOPIC])
-    probe.until(lambda: estimates.subscriber_count() == 1, procs=[proc], what="the bridge subscribed")
-    probe.until(lambda: (estimates.publish(estimate(0)), client.pump(0.05))[1] and client.messages,
-                procs=[proc], what="an estimate through the bridge")
-    n = 150
-    before = main_thread_wakeups(proc.pid)
-    for seq in range(1, n + 1):       # one every 2 ms, as a fast graph's small topics come
-        estimates.publish(estimate(seq))
-        time.sleep(0.002)
-    client.until(lambda: client.messages[-1].payload["seq"] == n, what="the last estimate")
-    wakeups = main_thread_wakeups(proc.pid) - before
-    # 0.3+ s of messages at 100 ms batches: a few wake-ups, plus the bridge's own timers
-    assert wakeups < n // 3, wakeups
-    client.close()
 
 
 def own_autogroup() -> str:

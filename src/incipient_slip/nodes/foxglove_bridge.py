@@ -33,7 +33,6 @@ from incipient_slip.messages import PAC_RATE_HZ, Message, MessageError
 __all__ = ["FoxgloveBridge", "register"]
 
 FOLLOW_S = 0.1      # how often the topics received follow what the clients subscribe to
-BATCH_MS = 20.0     # the graph read in batches this far apart: a viewer redraws at <= 60 Hz
 
 
 class FoxgloveBridge(Node):
@@ -50,9 +49,6 @@ class FoxgloveBridge(Node):
                                    "channel always has every sample)"),
               "wait_for_client_s": Param(0.0, lo=0.0, help="hold this node's start (and a launch's "
                                          "sources) until a viewer subscribes, at most this long"),
-              "batch_ms": Param(BATCH_MS, lo=0.0, hi=1000.0,
-                                help="read the graph every this many ms, all that queued at once "
-                                     "(0: wake for each message)"),
               "priority": Param("low", choices=("idle", "low", "normal"),
                                 help="CPU priority: idle = only CPU time no node wants (SCHED_IDLE), "
                                      "low = nice 10, normal = as the graph's nodes")}
@@ -61,7 +57,6 @@ class FoxgloveBridge(Node):
 
     def __init__(self, **kwargs):
         super().__init__("foxglove_bridge", **kwargs)
-        self._batch_s = self.param("batch_ms") / 1000.0
         # on a busy machine the loop's nodes get the CPU first; the server's threads, started
         # below, inherit this policy
         lower_priority(self.param("priority"))
@@ -83,17 +78,6 @@ class FoxgloveBridge(Node):
         self.follow_clients()
         if self.param("wait_for_client_s") > 0:
             self.wait_for_client(self.param("wait_for_client_s"))
-
-    def spin_once(self, timeout_s: float = POLL_S) -> None:
-        """Handles what came (waiting for it as every node does), then sleeps `batch_ms` while
-        the graph's messages queue, and handles all of them in one go: the bridge and the SDK's
-        threads wake ~50 times a second, not for every message (each wake-up costs CPU on the
-        cores the loop's nodes need; docs/performance.md, "Live view"). A viewer sees the
-        graph up to `batch_ms` late."""
-        super().spin_once(timeout_s)
-        if self._batch_s and not self.stopping:
-            time.sleep(self._batch_s)
-            self._read_queued()
 
     def on_message(self, topic: str, body: bytes, recv_ns: int) -> None:
         try:
