@@ -47,6 +47,18 @@ def use(directory: Path | None):
             os.environ[ENV] = old
 
 
+@contextmanager
+def off():
+    """Turn the cache off for the block (and the processes started in it): for work whose time is
+    the result being measured, which a cached entry would report as taking none."""
+    old = os.environ.pop(ENV, None)
+    try:
+        yield
+    finally:
+        if old is not None:
+            os.environ[ENV] = old
+
+
 def digest(*parts: Any) -> str:
     """Return the SHA-256 hex digest of `parts` (arrays by dtype, shape and bytes; dicts by sorted
     keys; lists and tuples item by item; anything else by its JSON or repr)."""

@@ -207,3 +207,24 @@ def test_with_a_cache_windows_are_computed_once_per_data_set_and_spec(fake_injec
         np.testing.assert_array_equal(ws.X, plain.X)
         np.testing.assert_array_equal(ws.y, plain.y)
         assert ws.data_hash == plain.data_hash
+
+
+def test_a_timed_fit_of_accuracy_vs_time_never_comes_from_the_cache(fake_injection_dir, tmp_path, monkeypatch):
+    """accuracy vs time reports each fit's time: under `slip reproduce` (cache on) a repeated fit
+    came from the cache and the page showed 'fit 0.0 s' for exact SVR. Timed fits bypass it."""
+    from sklearn.svm import SVR
+
+    from incipient_slip import cache
+    from incipient_slip.experiments.accuracy_vs_time import fit_point
+    ws = load_windows(fake_injection_dir, feature_spec("injection"), progress=False)
+    fits, real_fit = [], SVR.fit
+    monkeypatch.setattr(SVR, "fit", lambda self, *a, **k: fits.append(1) or real_fit(self, *a, **k))
+    params = {"kernel": "rbf", "C": 1.0, "gamma": 0.01, "epsilon": 0.05}
+    with cache.use(tmp_path / "cache"):
+        first = fit_point("model", "exact SVR", ws, ws, "svr", params, 200)
+        n_first = len(fits)
+        again = fit_point("model", "exact SVR", ws, ws, "svr", params, 200)
+        assert cache.root() == tmp_path / "cache"      # on again after each timed fit
+    assert n_first >= 1 and len(fits) == 2 * n_first    # the second fit was done, not read back
+    assert again.rmse == first.rmse
+    assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").rglob("*.pkl"))
