@@ -30,33 +30,35 @@ def root() -> Path | None:
 
 
 @contextmanager
+def _setting(directory: str | None):
+    """Set the cache's environment variable to `directory` (None: unset it) for the block, and
+    for the processes started in it (they inherit the environment); restore it afterwards."""
+    old = os.environ.pop(ENV, None)
+    if directory is not None:
+        os.environ[ENV] = directory
+    try:
+        yield
+    finally:
+        os.environ.pop(ENV, None)
+        if old is not None:
+            os.environ[ENV] = old
+
+
+@contextmanager
 def use(directory: Path | None):
     """Turn the cache on at `directory` (None: leave as it is) for the block, and for the processes
     started in it (the environment is inherited); restore the previous setting afterwards."""
     if directory is None:
         yield
         return
-    old = os.environ.get(ENV)
-    os.environ[ENV] = str(directory)
-    try:
+    with _setting(str(directory)):
         yield
-    finally:
-        if old is None:
-            os.environ.pop(ENV, None)
-        else:
-            os.environ[ENV] = old
 
 
-@contextmanager
 def off():
-    """Turn the cache off for the block (and the processes started in it): for work whose time is
-    the result being measured, which a cached entry would report as taking none."""
-    old = os.environ.pop(ENV, None)
-    try:
-        yield
-    finally:
-        if old is not None:
-            os.environ[ENV] = old
+    """Turn the cache off for the block (and the processes started in it); also a decorator. For
+    work whose time is the result being measured, which a cached entry would report as taking none."""
+    return _setting(None)
 
 
 def digest(*parts: Any) -> str:

@@ -85,14 +85,10 @@ def _raw_window(spec, rng):
     return rng.normal(0, 50, spec.window_samples).astype(np.int16)
 
 
+@cache.off()
 def fit_point(sweep, label, train, test, kind, params, max_train, n_components=1000, rng=None):
     """Return one point of the sweeps: accuracy, training time and latency of one fit. The fit
     is timed, so it never comes from the cache (a cached fit would read as taking no time)."""
-    with cache.off():
-        return _fit_point(sweep, label, train, test, kind, params, max_train, n_components, rng)
-
-
-def _fit_point(sweep, label, train, test, kind, params, max_train, n_components, rng):
     from incipient_slip.models.training import subsample_rows, train_model
     rng = rng or np.random.default_rng(0)
     t0 = time.perf_counter()
