@@ -382,7 +382,8 @@ def fit_mechanics(scene: Scene, n_series: int, runs: int, seed: int, maxfev: int
             "objective": mechanics_objective(summ), "evaluations": len(trace), "trace": trace, "chosen": chosen}
 
 
-def _beta_row(scene: Scene, b: float, n_series: int, runs: int, seed: int, maxfev: int) -> dict:
+def _beta_row(shared: tuple, b: float) -> dict:
+    scene, n_series, runs, seed, maxfev = shared
     sc = with_values(scene, {FITTED[2]: float(b)})
     fit = fit_mechanics(sc, n_series, runs, seed, maxfev, progress=False, stiffness_only=True)
     s = fit["summary"]
@@ -396,21 +397,14 @@ def beta_interval(scene: Scene, n_series: int, runs: int, seed: int, grid=(0.5, 
     """Return, per beta on `grid`, the refit of k_b and k_s and whether T1-T4' and T7 can be met:
     the interval of beta that the open-loop targets allow. The refits are independent (common
     random numbers): `workers` forked processes run them, with the same rows as in process."""
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
+    from incipient_slip.models.training import forked_map
 
-    args = [(scene, b, n_series, runs, seed, maxfev) for b in grid]
-    pool = ProcessPoolExecutor(min(workers, len(grid)), mp_context=mp.get_context("fork")) if workers > 1 else None
     rows = []
-    try:
-        for row in (pool.map(_beta_row, *zip(*args)) if pool else (_beta_row(*a) for a in args)):
-            rows.append(row)
-            if progress:
-                print(f"  beta {row['beta']:g}: J {row['J']:.2f}, T7 " + "/".join(f"{v:.2f}" for v in row["T7"].values())
-                      + (" (consistent)" if row["consistent"] else ""), flush=True)
-    finally:
-        if pool:
-            pool.shutdown()
+    for row in forked_map(_beta_row, list(grid), min(workers, len(grid)), (scene, n_series, runs, seed, maxfev)):
+        rows.append(row)
+        if progress:
+            print(f"  beta {row['beta']:g}: J {row['J']:.2f}, T7 " + "/".join(f"{v:.2f}" for v in row["T7"].values())
+                  + (" (consistent)" if row["consistent"] else ""), flush=True)
     return rows
 
 
