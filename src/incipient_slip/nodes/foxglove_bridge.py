@@ -130,7 +130,7 @@ def lower_priority(priority: str) -> None:
         try:
             if idle:
                 os.sched_setscheduler(tid, os.SCHED_IDLE, os.sched_param(0))
-            else:                           # no SCHED_IDLE (not Linux): nice is what there is
+            else:                           # low, or idle without SCHED_IDLE (not Linux): nice 10
                 os.setpriority(os.PRIO_PROCESS, tid, max(os.getpriority(os.PRIO_PROCESS, tid), 10))
         except OSError:                     # a thread that ended meanwhile
             pass
