@@ -3,7 +3,7 @@ import pytest
 
 from incipient_slip.models import dataset as ds
 from incipient_slip.models.features import (ELECTRODE_SUBSETS, METHODS, feature_spec, phi,
-                                            series_features, spectrum_bin_matrix,
+                                            series_feature_sets, series_features, spectrum_bin_matrix,
                                             valid_window_mask)
 
 
@@ -81,6 +81,24 @@ def test_series_features_cut_exactly_the_windows_ending_at_each_period(fake_inje
     assert len(stops) <= 512                    # one chunk: the same batch for both
     sliced = np.stack([s.pac_counts[stop - spec.window_samples:stop] for stop in stops])
     np.testing.assert_array_equal(series_features(s, spec, ends), phi(sliced, spec))
+
+
+def test_feature_sets_sharing_an_fft_equal_each_spec_alone_bit_for_bit(fake_injection_dir):
+    """Specs that differ only after the FFT (bins, band, log) share each window's FFT; the result
+    is the floats of each spec alone, and of phi of the sliced windows."""
+    s = ds.load_series(ds.series_paths(fake_injection_dir)[1])
+    specs = [feature_spec("injection"), feature_spec("injection", bin_hz=2.0),
+             feature_spec("injection", band_hz=(400.0, 1100.0), log10=False), feature_spec("e10"),
+             feature_spec("injection", window_s=0.5), feature_spec("injection", bin_hz=50.0, window_s=0.5)]
+    ends = s.period_end_s[valid_window_mask(s.period_end_s, specs[0], len(s.pac_counts))]
+    got = series_feature_sets(s, specs, ends, chunk=64)      # several chunks
+    for spec, X in zip(specs, got):
+        np.testing.assert_array_equal(X, series_features(s, spec, ends, chunk=64))
+        if spec.stream == "pac":
+            stops = np.round(ends * spec.rate_hz).astype(int)
+            sliced = np.stack([s.pac_counts[stop - spec.window_samples:stop] for stop in stops[:64]])
+            np.testing.assert_array_equal(X[:64], phi(sliced, spec))
+        assert X.shape == (len(ends), spec.n_features) and np.isfinite(X).all()
 
 
 def test_first_valid_window_needs_a_full_window_of_data():

@@ -145,7 +145,10 @@ def test_grid_rows_and_choice_equal_one_libsvm_fit_per_candidate_and_fold(fake_i
 
 def test_window_sets_read_once_for_many_specs_on_a_pool_equal_load_windows_per_spec(fake_injection_dir):
     from incipient_slip.models.training import load_window_sets
-    specs = [feature_spec(m) for m in ("injection", "e19", "e1")]
+    # injection's variants share the FFT of each window (series_feature_sets): still the same floats
+    specs = [feature_spec(m) for m in ("injection", "e19", "e1")] + [
+        feature_spec("injection", bin_hz=25.0), feature_spec("injection", band_hz=(100.0, 400.0)),
+        feature_spec("injection", window_s=0.5)]
     for after_slip in ("zero", "drop"):
         sets = load_window_sets(fake_injection_dir, specs, progress=False, after_slip=after_slip, workers=2)
         for spec, got in zip(specs, sets):
@@ -194,8 +197,8 @@ def test_with_a_cache_windows_are_computed_once_per_data_set_and_spec(fake_injec
     from incipient_slip import cache
     from incipient_slip.models import training
     plain = load_windows(fake_injection_dir, feature_spec("e4"), progress=False)
-    calls, real = [], training.series_features
-    monkeypatch.setattr(training, "series_features", lambda *a, **k: calls.append(1) or real(*a, **k))
+    calls, real = [], training.series_feature_sets
+    monkeypatch.setattr(training, "series_feature_sets", lambda *a, **k: calls.append(1) or real(*a, **k))
     with cache.use(tmp_path / "cache"):
         first = load_windows(fake_injection_dir, feature_spec("e4"), progress=False)
         n = len(calls)

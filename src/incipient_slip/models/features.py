@@ -164,10 +164,20 @@ def phi_spectrum(windows: np.ndarray, spec: FeatureSpec) -> np.ndarray:
     if windows.shape[1] != n:
         raise ValueError(f"P_AC window has {windows.shape[1]} samples, spec {spec.method} "
                          f"needs {n} ({spec.window_s} s at {spec.rate_hz} Hz)")
+    return _binned(_magnitudes(windows, spec.taper), spec)
+
+
+def _magnitudes(windows: np.ndarray, taper: str) -> np.ndarray:
+    """Return the float32 rfft magnitudes of float32 windows, each demeaned and tapered: the
+    part of phi_spectrum that depends only on the window length and taper."""
     x = windows - windows.mean(axis=1, keepdims=True)
-    x *= _taper(n, spec.taper)
-    mag = np.abs(np.fft.rfft(x, axis=1)).astype(np.float32)
-    amp = mag @ spectrum_bin_matrix(n, spec.rate_hz, tuple(spec.band_hz), spec.bin_hz)
+    x *= _taper(windows.shape[1], taper)
+    return np.abs(np.fft.rfft(x, axis=1)).astype(np.float32)
+
+
+def _binned(mag: np.ndarray, spec: FeatureSpec) -> np.ndarray:
+    """Return phi from `_magnitudes`: the spec's bins of its band, log10 when the spec says."""
+    amp = mag @ spectrum_bin_matrix(spec.window_samples, spec.rate_hz, tuple(spec.band_hz), spec.bin_hz)
     return np.log10(amp + LOG_FLOOR_COUNTS) if spec.log10 else amp
 
 
@@ -204,18 +214,39 @@ def series_features(series, spec: FeatureSpec, end_s: np.ndarray | None = None,
 
     The caller keeps only valid windows (`valid_window_mask`); an invalid end raises.
     """
+    return series_feature_sets(series, [spec], end_s, chunk)[0]
+
+
+def series_feature_sets(series, specs, end_s: np.ndarray | None = None, chunk: int = 512) -> list[np.ndarray]:
+    """Return `series_features` of each spec on the same window ends. P_AC specs that differ
+    only after the FFT (bins, band, log) share one FFT of each window: the same floats as one
+    spec at a time, for a fraction of the work (a sweep of bin widths and bands)."""
     end_s = series.period_end_s if end_s is None else np.asarray(end_s)
-    stops = window_stops(end_s, spec.rate_hz)
-    n = spec.window_samples
-    if spec.stream == "pac":
+    out: list = [None] * len(specs)
+    same_fft: dict = {}
+    for i, spec in enumerate(specs):
+        if spec.stream == "pac":
+            same_fft.setdefault((spec.rate_hz, spec.window_samples, spec.taper), []).append(i)
+        else:
+            out[i] = _electrode_features(series, spec, end_s)
+    for (rate_hz, n, taper), idx in same_fft.items():
+        stops = window_stops(end_s, rate_hz)
         stream = series.pac_counts
         if (stops - n < 0).any() or (stops > len(stream)).any():
             raise ValueError("window outside the P_AC stream; filter with valid_window_mask")
-        out = np.empty((len(stops), spec.n_features), dtype=np.float32)
+        for i in idx:
+            out[i] = np.empty((len(stops), specs[i].n_features), dtype=np.float32)
         windows = np.lib.stride_tricks.sliding_window_view(stream, n)    # a view: row i = stream[i:i + n]
         for a in range(0, len(stops), chunk):
-            out[a:a + chunk] = phi_spectrum(windows[stops[a:a + chunk] - n], spec)
-        return out
+            mag = _magnitudes(np.asarray(windows[stops[a:a + chunk] - n], dtype=np.float32), taper)
+            for i in idx:
+                out[i][a:a + chunk] = _binned(mag, specs[i])
+    return out
+
+
+def _electrode_features(series, spec: FeatureSpec, end_s: np.ndarray) -> np.ndarray:
+    stops = window_stops(end_s, spec.rate_hz)
+    n = spec.window_samples
     counts = series.electrode_counts
     if (stops - n < 0).any() or (stops > len(counts)).any():
         raise ValueError("window outside the electrode stream; filter with valid_window_mask")

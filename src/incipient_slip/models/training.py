@@ -27,7 +27,7 @@ from tqdm import tqdm
 
 from ..cluster import map_tasks
 from . import dataset as ds
-from .features import FeatureSpec, series_features, valid_window_mask
+from .features import FeatureSpec, series_feature_sets, valid_window_mask
 from .labels import LABELS, label_series, training_labels
 from .modelfile import Model
 
@@ -155,8 +155,14 @@ def _series_windows(options: tuple, path) -> tuple:
     if lab.gross_slip_index < 0:
         return s.index, None
     target = training_labels(s, lab, label)
-    parts = []
-    for spec in specs:
+    parts: list = [None] * len(specs)
+    # specs with the same window on the same stream keep the same windows: their features in
+    # one call (P_AC specs among them share each window's FFT)
+    same_windows: dict = {}
+    for j, spec in enumerate(specs):
+        same_windows.setdefault((spec.stream, spec.rate_hz, spec.window_samples), []).append(j)
+    for js in same_windows.values():
+        spec = specs[js[0]]
         n_stream = len(s.pac_counts) if spec.stream == "pac" else len(s.electrode_counts)
         ok = valid_window_mask(s.period_end_s, spec, n_stream)
         if min_window_s is not None:
@@ -165,12 +171,11 @@ def _series_windows(options: tuple, path) -> tuple:
             ok &= np.arange(len(ok)) <= lab.gross_slip_index
         k = np.flatnonzero(ok)
         if len(k) == 0:
-            parts.append(None)
             continue
-        X = series_features(s, spec, s.period_end_s[k])
-        parts.append((X, target[k], np.full(len(k), s.index), np.full(len(k), s.material, dtype=object), k,
-                      s.stick_area_ratio[k], s.load_ratio_stick[k], s.tangential_force_n[k],
-                      s.normal_force_kpa[k], k > lab.gross_slip_index))
+        for j, X in zip(js, series_feature_sets(s, [specs[j] for j in js], s.period_end_s[k])):
+            parts[j] = (X, target[k], np.full(len(k), s.index), np.full(len(k), s.material, dtype=object), k,
+                        s.stick_area_ratio[k], s.load_ratio_stick[k], s.tangential_force_n[k],
+                        s.normal_force_kpa[k], k > lab.gross_slip_index)
     return s.index, parts
 
 
