@@ -231,3 +231,26 @@ def test_a_timed_fit_of_accuracy_vs_time_never_comes_from_the_cache(fake_injecti
     assert n_first >= 1 and len(fits) == 2 * n_first    # the second fit was done, not read back
     assert again.rmse == first.rmse
     assert not (tmp_path / "cache").exists() or not any((tmp_path / "cache").rglob("*.pkl"))
+
+
+def test_accuracy_vs_time_fits_a_setting_met_in_several_sweeps_once(fake_injection_dir, monkeypatch):
+    """The paper's setting is a point of every sweep, and the size sweep's exact SVRs are the scale
+    study's: each setting is fitted (and timed) once and reported under each sweep's own label;
+    another setting is another fit."""
+    from incipient_slip.experiments import accuracy_vs_time as avt
+    ws = load_windows(fake_injection_dir, feature_spec("injection"), progress=False)
+    calls, real = [], avt.fit_point
+    monkeypatch.setattr(avt, "fit_point", lambda *a, **k: calls.append(a[:2]) or real(*a, **k))
+    params = {"kernel": "rbf", "C": 1.0, "gamma": 0.01, "epsilon": 0.05}
+    fits = avt.Fits()
+    first = fits.point("window", "T = 1 s", ws, ws, "svr", params, 200)
+    again = fits.point("size", "exact SVR n = 200", ws, ws, "svr", dict(params), 200)
+    assert calls == [("window", "T = 1 s")]
+    assert (again.sweep, again.label) == ("size", "exact SVR n = 200")
+    assert (again.rmse, again.train_s, again.latency_ms) == (first.rmse, first.train_s, first.latency_ms)
+    assert (first.sweep, first.label) == ("window", "T = 1 s")          # the first report is unchanged
+    fits.point("size", "exact SVR n = 100", ws, ws, "svr", params, 100)
+    fits.point("model", "C = 2", ws, ws, "svr", dict(params, C=2.0), 200)
+    fits.point("model", "Nystroem 50", ws, ws, "nystroem", params, None, n_components=50)
+    fits.point("scale", "Nystroem 60", ws, ws, "nystroem", params, None, n_components=60)
+    assert len(calls) == 5

@@ -18,6 +18,7 @@ longer to fit (155 s vs 3 s) and 9x longer per window with 2 threads than with 1
 """
 from __future__ import annotations
 
+import json
 import os
 import time
 from dataclasses import dataclass, replace
@@ -114,6 +115,24 @@ def fit_point(sweep, label, train, test, kind, params, max_train, n_components=1
     return Point(sweep, label, train.spec.window_s, rmse, top, train_s, lat, int(n))
 
 
+class Fits:
+    """The study's fits, each done once: the paper's setting (T = 1 s, 10 Hz bins, exact SVR on
+    4000 windows) is a point of every sweep, the size sweep's exact SVRs are the scale study's
+    smaller ones, and Nystroem 1000 is in the model sweep and the scale study. A setting met again
+    is the same fit (same data, parameters and seed), so it is reported with its one measurement
+    under the new sweep and label instead of being fitted and timed again."""
+
+    def __init__(self):
+        self.points: dict = {}
+
+    def point(self, sweep, label, train, test, kind, params, max_train, n_components=1000) -> Point:
+        key = (train.spec.spec_hash(), train.data_hash, len(train.y), test.spec.spec_hash(), len(test.y), kind,
+               max_train, n_components if kind == "nystroem" else None, json.dumps(params, sort_keys=True))
+        if key not in self.points:
+            self.points[key] = fit_point(sweep, label, train, test, kind, params, max_train, n_components)
+        return replace(self.points[key], sweep=sweep, label=label)
+
+
 def run_sweeps(data_dir: Path, quick: bool = False, progress: bool = True, workers: int = 1) -> dict:
     """Return {"points": [...], "scale": {...}} for the injection method on data_dir."""
     from incipient_slip.models.training import (grid_search_svr, held_out_series, load_window_sets,
@@ -146,19 +165,15 @@ def run_sweeps(data_dir: Path, quick: bool = False, progress: bool = True, worke
     rbf_params = params if params["kernel"] == "rbf" else {"kernel": "rbf", "C": 1.0,
                                                            "gamma": 1.0 / train.X.shape[1], "epsilon": 0.05}
     points = []
-
-    done = {}
+    fits = Fits()
+    splits = {base.spec_hash(): (train, test)}
 
     def spec_point(sweep, label, spec):
-        if spec.spec_hash() in done:      # the paper's setting appears in every sweep
-            return replace(done[spec.spec_hash()], sweep=sweep, label=label)
-        if spec.spec_hash() == base.spec_hash():
-            tr, te = train, test
-        else:
-            tr, te = split_train_test(sets.pop(spec.spec_hash()), test_series)
+        if spec.spec_hash() not in splits:
+            splits[spec.spec_hash()] = split_train_test(sets.pop(spec.spec_hash()), test_series)
+        tr, te = splits[spec.spec_hash()]
         p = dict(rbf_params, gamma=rbf_params["gamma"] * base.n_features / spec.n_features)
-        done[spec.spec_hash()] = fit_point(sweep, label, tr, te, "svr", p, max_train)
-        return done[spec.spec_hash()]
+        return fits.point(sweep, label, tr, te, "svr", p, max_train)
 
     for sweep, label, spec in tqdm(jobs, desc="sweeps", disable=not progress):
         points.append(spec_point(sweep, label, spec))
@@ -166,21 +181,22 @@ def run_sweeps(data_dir: Path, quick: bool = False, progress: bool = True, worke
              ("nystroem", "Nystroem 1000 + ridge", None, 1000), ("linear", "ridge (linear)", None, 0),
              ("hgb", "gradient-boosted trees", hgb_max, 0)]
     for kind, label, mt, nc in tqdm(kinds, desc="kinds", disable=not progress):
-        points.append(fit_point("model", label, train, test, kind, rbf_params, mt, n_components=nc or 1000))
+        points.append(fits.point("model", label, train, test, kind, rbf_params, mt, n_components=nc or 1000))
     for n in tqdm([n for n in sizes if n <= len(train.y)], desc="sizes", disable=not progress):
-        points.append(fit_point("size", f"exact SVR n = {n}", train, test, "svr", rbf_params, n))
+        points.append(fits.point("size", f"exact SVR n = {n}", train, test, "svr", rbf_params, n))
     return {"points": [dict(p.__dict__, delay_s=p.delay_s) for p in points], "params": params,
             "n_train_windows": int(len(train.y)), "n_test_series": int(len(test_series)),
             "sizes": {"max_train": max_train, "grid_max": grid_max, "hgb_max": hgb_max},
-            "elapsed_s": time.perf_counter() - t_all, "_prepared": (train, test, rbf_params)}
+            "elapsed_s": time.perf_counter() - t_all, "_prepared": (train, test, rbf_params, fits)}
 
 
-def scale_study(train: WindowSet, test: WindowSet, params: dict, budget_s: float = 600.0,
-                quick: bool = False, progress: bool = True) -> dict:
+def scale_study(train: WindowSet, test: WindowSet, params: dict, fits: Fits | None = None,
+                budget_s: float = 600.0, quick: bool = False, progress: bool = True) -> dict:
     """Exact SVR time vs n, extrapolated; best feasible exact SVR vs Nystroem on all windows.
 
-    train / test / params: the injection windows and RBF-SVR parameters of `run_sweeps`.
+    train / test / params / fits: the injection windows, RBF-SVR parameters and fits of `run_sweeps`.
     """
+    fits = fits or Fits()
     test_series = np.unique(test.series)
     ns = [500, 1000, 2000] if quick else [1000, 2000, 4000, 8000, 16000, 24000]
     exact = []
@@ -195,7 +211,7 @@ def scale_study(train: WindowSet, test: WindowSet, params: dict, budget_s: float
             # time grows faster than the fitted power law: keep a 4x margin
             if t2 * (n / n2) ** k > budget_s / 4:
                 break
-        p = fit_point("scale", f"exact SVR n = {n}", train, test, "svr", params, n)
+        p = fits.point("scale", f"exact SVR n = {n}", train, test, "svr", params, n)
         exact.append({"n": n, "fit_s": p.train_s, "rmse": p.rmse, "top10": p.top10, "latency_ms": p.latency_ms})
     nn = np.array([e["n"] for e in exact], float)
     tt = np.array([e["fit_s"] for e in exact], float)
@@ -207,7 +223,7 @@ def scale_study(train: WindowSet, test: WindowSet, params: dict, budget_s: float
         slope, predicted_full_s = 2.0, float(tt[-1] * (n_all / nn[-1]) ** 2)
     ny = []
     for nc in ([300, 1000] if quick else [1000, 2000, 3000]):
-        p = fit_point("scale", f"Nystroem {nc} + ridge, all windows", train, test, "nystroem", params,
+        p = fits.point("scale", f"Nystroem {nc} + ridge, all windows", train, test, "nystroem", params,
                       None, n_components=nc)
         ny.append({"n_components": nc, "n": n_all, "fit_s": p.train_s, "rmse": p.rmse, "top10": p.top10,
                    "latency_ms": p.latency_ms})
