@@ -3,10 +3,12 @@ import zipfile
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from incipient_slip.models.estimator_core import ModelFileError, load_model
 from incipient_slip.models.features import feature_spec
-from incipient_slip.models.modelfile import Model, read_model_file, save_model
+from incipient_slip.models.modelfile import Model, rbf_of_dot, read_model_file, save_model
 
 
 def _model(method="injection", kind="kernel"):
@@ -103,3 +105,18 @@ def test_predictions_are_clipped_to_unit_interval():
     X = np.random.default_rng(2).normal(size=(50, m.spec.n_features)) * 100
     p = m.predict(X)
     assert p.min() >= 0 and p.max() <= 1
+
+
+@given(st.integers(1, 40), st.integers(1, 40), st.integers(1, 12), st.floats(1e-4, 50.0), st.integers(0, 2**32 - 1))
+@settings(max_examples=60, deadline=None)
+def test_rbf_of_dot_is_the_textbook_expression_bit_for_bit(n_a, n_b, dim, gamma, seed):
+    """The in-place kernel gives exactly exp(-gamma * max(|a|^2 + |b|^2 - 2 a.b, 0)), duplicates
+    (distance 0, rounding below 0: the clip) and far rows (underflow to 0) included."""
+    rng = np.random.default_rng(seed)
+    A = rng.normal(0, 3, (n_a, dim))
+    B = np.vstack([A[: n_b // 2], rng.normal(0, 3, (n_b - n_b // 2, dim))])   # some exact duplicates
+    ref_sq = np.einsum("ij,ij->i", A, A)[:, None] + np.einsum("ij,ij->i", B, B)[None, :] - 2.0 * (A @ B.T)
+    ref = np.exp(-gamma * np.maximum(ref_sq, 0.0))
+    got = rbf_of_dot(np.einsum("ij,ij->i", A, A), np.einsum("ij,ij->i", B, B), A @ B.T, gamma)
+    np.testing.assert_array_equal(got, ref)
+    assert np.all((got >= 0) & (got <= 1))

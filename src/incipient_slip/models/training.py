@@ -29,7 +29,7 @@ from ..cluster import map_tasks
 from . import dataset as ds
 from .features import FeatureSpec, series_feature_sets, valid_window_mask
 from .labels import LABELS, label_series, training_labels
-from .modelfile import Model
+from .modelfile import Model, rbf_of_dot
 
 SPLIT_SEED = 20240917
 TEST_FRACTION = 0.10
@@ -384,8 +384,7 @@ def model_from_svr(svr, mean, scale, spec) -> Model:
 
 def rbf_kernel(Z: np.ndarray, centers: np.ndarray, gamma: float) -> np.ndarray:
     """Return exp(-gamma |z - c|^2) for all rows of Z against all centres."""
-    sq = (Z * Z).sum(1)[:, None] + (centers * centers).sum(1)[None] - 2.0 * Z @ centers.T
-    return np.exp(-gamma * np.maximum(sq, 0.0))
+    return rbf_of_dot((Z * Z).sum(1), (centers * centers).sum(1), Z @ centers.T, gamma)
 
 
 def nystroem_basis(Z, n_components, gamma, seed=SPLIT_SEED):
