@@ -42,8 +42,12 @@ NAME = "accuracy-vs-time"
 HELP = "what accuracy costs in time: sweeps of T, bins, band, model and data size"
 DOC = "accuracy-vs-time.md"
 QUICK = ("10 series (full 500), 4 windows T, 3 bin widths and 2 bands (full 5, 5 and 4), exact SVR on "
-         "at most 1500 windows (full 4000) with a 3-candidate grid, scale study to 2000 windows (full 24000)")
+         "at most 1500 windows (full 4000) with a 3-candidate grid, scale study to 2000 windows (full: up to 24000, as its 2-min budget per fit allows)")
 RESULTS = "avt_results.json"      # in docs/figures/: the page's numbers, for --render-only
+# the scale study's budget for one exact SVR fit: 2 min, a fit one reruns while tuning. On this
+# machine it stops after 16000 windows; 24000 (86-115 s: libsvm's 500 MB kernel cache holds a
+# quarter of that kernel) was the largest item of `slip reproduce all` (docs/accuracy-vs-time.md)
+EXACT_BUDGET_S = 120.0
 
 
 @dataclass
@@ -191,10 +195,12 @@ def run_sweeps(data_dir: Path, quick: bool = False, progress: bool = True, worke
 
 
 def scale_study(train: WindowSet, test: WindowSet, params: dict, fits: Fits | None = None,
-                budget_s: float = 600.0, quick: bool = False, progress: bool = True) -> dict:
+                budget_s: float = EXACT_BUDGET_S, quick: bool = False, progress: bool = True) -> dict:
     """Exact SVR time vs n, extrapolated; best feasible exact SVR vs Nystroem on all windows.
 
     train / test / params / fits: the injection windows, RBF-SVR parameters and fits of `run_sweeps`.
+    budget_s: the longest exact fit the study runs; a size whose fit is predicted to take more
+    than a quarter of it is not run (nor any larger).
     """
     fits = fits or Fits()
     test_series = np.unique(test.series)
@@ -233,7 +239,7 @@ def scale_study(train: WindowSet, test: WindowSet, params: dict, fits: Fits | No
     best_exact = min(exact, key=lambda e: e["rmse"])
     return {"params": params, "n_train_windows": n_all, "exact": exact, "exponent": float(slope),
             "predicted_exact_full_s": predicted_full_s, "nystroem": ny, "best_exact": best_exact,
-            "n_test_series": int(len(test_series))}
+            "n_test_series": int(len(test_series)), "exact_budget_s": budget_s}
 
 
 def pareto_front(points: list[dict], x: str = "delay_s", y: str = "rmse") -> list[dict]:
@@ -357,9 +363,16 @@ def render_scale(scale: dict) -> str:
     good = [e for e in scale["nystroem"] if e["fit_s"] <= 600]
     best_ny = min(good or scale["nystroem"], key=lambda e: e["rmse"])
     rel = best_ny["rmse"] / be["rmse"] - 1
-    lines += ["", f"Exact SVR fit time grows as n^{scale['exponent']:.2f} here; fitted on all "
-              f"{scale['n_train_windows']} windows it would take about {scale['predicted_exact_full_s'] / 60:.0f} min "
-              "(extrapolated, not run).",
+    from incipient_slip.models.training import SVR_CACHE_MB as CACHE_MB
+    n_cached = int((CACHE_MB * 2**20 / 4) ** 0.5)
+    budget = scale.get("exact_budget_s")
+    stop = (f"The exact sizes stop where the next fit is predicted to exceed a quarter of the study's "
+            f"{budget:.0f} s budget per fit. " if budget else "")
+    beyond = (f"libsvm's {CACHE_MB} MB kernel cache holds the whole kernel only up to about {n_cached} windows, "
+              "and the further past that, the more kernel rows it recomputes: a lower bound")
+    lines += ["", f"{stop}Exact SVR fit time grows as n^{scale['exponent']:.2f} over the largest three sizes; "
+              f"fitted on all {scale['n_train_windows']} windows it would take about "
+              f"{scale['predicted_exact_full_s'] / 60:.0f} min (extrapolated, not run; {beyond}).",
               f"Best exact SVR trained: n = {be['n']}, RMSE {be['rmse']:.3f}. Best Nystroem + ridge on all windows "
               f"within 10 min: {best_ny['n_components']} landmarks, {best_ny['fit_s']:.0f} s, RMSE {best_ny['rmse']:.3f} "
               f"({rel * 100:+.1f} % vs the best exact SVR; goal: within +5 %, "

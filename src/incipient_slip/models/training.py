@@ -34,6 +34,7 @@ from .modelfile import Model, rbf_of_dot
 SPLIT_SEED = 20240917
 TEST_FRACTION = 0.10
 KINDS = ("svr", "nystroem", "linear")
+SVR_CACHE_MB = 500          # libsvm's kernel cache: the whole kernel of up to ~11 000 windows (float32)
 
 
 @dataclass
@@ -261,7 +262,7 @@ def svr_grid(n_features: int, quick: bool = False) -> list[dict]:
     return rbf + lin
 
 
-def _fit_svr(Z, y, params, cache_mb=500):
+def _fit_svr(Z, y, params, cache_mb=SVR_CACHE_MB):
     """Return an SVR fitted on (Z, y); from the content-hashed cache when one is on (`cache`)."""
     import sklearn
     from sklearn.svm import SVR
@@ -306,9 +307,9 @@ def _group_mse(Z, y, tr, va, cells, zy_key: str = "") -> list[float]:
             if not kernels:
                 kernels.extend(_rbf_kernels(Z[tr], Z[va], p["gamma"]))
             rest = {k: v for k, v in p.items() if k not in ("kernel", "gamma")}
-            pred = SVR(kernel="precomputed", cache_size=500, **rest).fit(kernels[0], y[tr]).predict(kernels[1])
+            pred = SVR(kernel="precomputed", cache_size=SVR_CACHE_MB, **rest).fit(kernels[0], y[tr]).predict(kernels[1])
         else:
-            pred = SVR(cache_size=500, **p).fit(Z[tr], y[tr]).predict(Z[va])
+            pred = SVR(cache_size=SVR_CACHE_MB, **p).fit(Z[tr], y[tr]).predict(Z[va])
         return float(np.mean((np.clip(pred, 0, 1) - y[va]) ** 2))
     if len({p.get("gamma") for p in cells if p["kernel"] == "rbf"}) > 1:
         raise ValueError("one grid task shares one RBF gamma")
