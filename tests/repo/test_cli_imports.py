@@ -51,6 +51,29 @@ def test_topic_and_node_help_import_neither_numpy_nor_zmq(argv, tmp_path):
     assert json.loads(out.strip().splitlines()[-1]) == []
 
 
+def test_slip_help_does_not_import_the_simulator(tmp_path):
+    """`slip --help` registers every command; `sim.cli` (slip dataset) once imported the whole
+    simulator through the package's __init__ (scipy, numba: 0.8 s). The package loads its
+    names on first use."""
+    env = dict(os.environ, SLIP_GRAPH_DIR=str(tmp_path / "graph"))
+    heavy = {"scipy", "sklearn", "numba", "matplotlib", "distributed", "dask"}
+    out = subprocess.run([sys.executable, "-c", _PROBE.format(heavy=heavy), "--help"], env=env,
+                         capture_output=True, text=True, timeout=300, check=True).stdout
+    assert json.loads(out.strip().splitlines()[-1]) == []
+    assert "incipient_slip.sim.rig" not in subprocess.run(
+        [sys.executable, "-c", "import sys; from incipient_slip.cli import main\ntry: main(['--help'])\n"
+         "except SystemExit: pass\nprint(sorted(sys.modules))"], env=env, capture_output=True, text=True,
+        timeout=300, check=True).stdout
+
+
+def test_the_simulator_s_public_names_load_on_first_use():
+    import incipient_slip.sim as sim
+    from incipient_slip.sim.rig import Rig
+    assert sim.Rig is Rig and set(sim.__all__) <= set(dir(sim))
+    with pytest.raises(AttributeError, match="no attribute 'Rigg'"):
+        sim.Rigg
+
+
 def test_each_module_registers_exactly_the_commands_the_table_names():
     # cli.COMMANDS is how `slip WORD` finds the one module to import: it must not drift
     for entry, words in cli.COMMANDS.items():
