@@ -61,10 +61,10 @@ print(json.dumps(out))
 _GRID_INPUT = r"""
 import sys, json, numpy as np
 from incipient_slip.models.features import feature_spec
-from incipient_slip.models.pipeline import SCENE_OF_METHOD
+from incipient_slip.models.pipeline import DATASET_OF_METHOD
 from incipient_slip.models.training import held_out_series, load_windows, split_train_test, subsample_rows
 dirs, method, out = json.loads(sys.argv[1]), sys.argv[2], sys.argv[3]
-ws = load_windows(dirs[SCENE_OF_METHOD[method]], feature_spec(method), progress=False)
+ws = load_windows(dirs[DATASET_OF_METHOD[method]], feature_spec(method), progress=False)
 train, _ = split_train_test(ws, held_out_series(ws.series_materials()))
 g = subsample_rows(len(train.y), 2000)
 np.savez(out, X=train.X[g].astype(np.float64), y=train.y[g], g=train.series[g])

@@ -18,7 +18,9 @@ from .modelfile import Model
 from .training import (WindowSet, forked_map, held_out_series, load_window_sets, split_train_test,
                        train_model)
 
-SCENE_OF_METHOD = {m: ("no_injection" if m == "vibrotactile" else "paper") for m in METHODS}
+# the data set each method trains on (the key of `data_dirs`); the scene of a closed-loop run
+# is another table, control.SCENE_OF_METHOD (electrodes only, no PZT drive)
+DATASET_OF_METHOD = {m: ("no_injection" if m == "vibrotactile" else "paper") for m in METHODS}
 
 
 @dataclass
@@ -63,8 +65,8 @@ def load_all_windows(data_dirs: dict, methods=METHODS, window_s: float = 1.0, pr
     """Return {method: WindowSet} under the paper's rule (all windows; filter post_slip for the
     incipient range): each data set's series read once for all its methods, by `workers` processes."""
     out = {}
-    for scene in dict.fromkeys(SCENE_OF_METHOD[m] for m in methods):
-        ms = [m for m in methods if SCENE_OF_METHOD[m] == scene]
+    for scene in dict.fromkeys(DATASET_OF_METHOD[m] for m in methods):
+        ms = [m for m in methods if DATASET_OF_METHOD[m] == scene]
         sets = load_window_sets(data_dirs[scene], [feature_spec(m, window_s=window_s) for m in ms],
                                 progress=progress, workers=workers)
         out.update(zip(ms, sets))
