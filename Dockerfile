@@ -16,3 +16,8 @@ RUN pip install --no-cache-dir -c constraints.txt -e . && useradd -m slip \
     && mkdir -m 0700 /graph && mkdir -m 0755 /runs && chown slip:slip /graph /runs
 USER slip
 ENV SLIP_GRAPH_DIR=/graph
+# The simulator's compiled kernels (numba, cache=True) are cached beside their source, which the
+# node user cannot write here (/app/src is root's), so numba caches them in ~/.cache/numba
+# instead. Building one rig here compiles and caches every kernel in the image: no container
+# compiles them at start-up (seconds a real-time rig_sim would spend before its first period).
+RUN python -c "from incipient_slip.sim import Rig, load_scene; Rig(load_scene('paper'), 'pla', 0)"

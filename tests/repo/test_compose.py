@@ -1,6 +1,7 @@
 """docker-compose.yml cannot run here (no docker engine); check what can be checked without it."""
 import os
 import re
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -71,6 +72,23 @@ def test_the_image_makes_the_graph_directory_for_the_node_user_and_pins_versions
     assert {"pyzmq", "msgpack", "numpy", "scipy", "scikit-learn", "pyyaml", "mcap"} <= names
     ignored = (ROOT / ".dockerignore").read_text().split()
     assert {".git", ".venv", "runs"} <= set(ignored)
+
+
+def test_the_image_compiles_the_simulator_s_kernels_into_the_node_user_s_cache(tmp_path):
+    """The image's warm-up command (run as the node user, after USER slip) compiles and caches
+    the rig's numba kernels: run here with numba's cache pointed at an empty directory, it fills
+    it, and a second process loads them from there without compiling again."""
+    docker = (ROOT / "Dockerfile").read_text()
+    line = next(l for l in docker.splitlines() if l.startswith("RUN python -c") and "Rig(" in l)
+    assert docker.index("USER slip") < docker.index(line)
+    code = shlex.split(line)[3]
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"), NUMBA_DEBUG_CACHE="1")
+    first = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600,
+                           check=True)
+    assert list((tmp_path / "numba").rglob("*.nbi")), first.stdout[-2000:]
+    again = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600,
+                           check=True)
+    assert "[cache] data loaded" in again.stdout and "[cache] data saved" not in again.stdout, again.stdout[-2000:]
 
 
 def test_the_summary_reaches_the_host_and_compose_returns_the_verdict():
