@@ -163,3 +163,22 @@ def test_views_that_do_not_follow_from_the_run_are_refused():
     with pytest.raises(ValueError):                  # a louder PZT is not the same P_AC
         import dataclasses
         view_kind(dataclasses.replace(paper, injection_db=6.0), paper)
+
+
+def test_series_are_bit_identical_to_the_committed_reference():
+    # every array of data-collection series (each scene, material, two seeds), series written with
+    # views, a parameter variant and closed-loop runs (PZT switched, actuator held) equals, bit for
+    # bit, what the simulator computed when tests/data/sim_series.json was written (speed work on
+    # the signal path must not change results; make_sim_series.py says when to regenerate it)
+    import importlib.util
+    import json
+    from pathlib import Path
+    data = Path(__file__).resolve().parents[1] / "data"
+    spec = importlib.util.spec_from_file_location("make_sim_series", data / "make_sim_series.py")
+    make = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(make)
+    recorded = json.loads((data / "sim_series.json").read_text())
+    got = make.digests()
+    assert set(got) == set(recorded)
+    for case in recorded:
+        assert got[case] == recorded[case], f"{case}: arrays differ from the reference"
