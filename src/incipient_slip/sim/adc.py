@@ -3,14 +3,21 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import kernels
+
 
 def pac_to_counts(pac_pa: np.ndarray, pa_per_count: float, range_pa: float) -> np.ndarray:
     """Return int16 P_AC counts: round(P / pa_per_count), clipped at +/- range_pa."""
-    lim = np.floor(range_pa / pa_per_count)
-    x = np.rint(pac_pa * (1.0 / pa_per_count))
-    np.minimum(x, lim, out=x)
-    np.maximum(x, -lim, out=x)
-    return x.astype(np.int16)
+    return pac_to_counts_finite(pac_pa, pa_per_count, range_pa)[0]
+
+
+def pac_to_counts_finite(pac_pa: np.ndarray, pa_per_count: float, range_pa: float) -> tuple[np.ndarray, bool]:
+    """Return (pac_to_counts' counts, whether every P was finite); a non-finite P's count is 0."""
+    x = np.ascontiguousarray(pac_pa, dtype=np.float64)
+    out = np.empty(x.shape, np.int16)
+    finite = kernels.pac_counts(x.reshape(-1), 1.0 / pa_per_count, float(np.floor(range_pa / pa_per_count)),
+                                out.reshape(-1))
+    return out, finite
 
 
 def to_uint12(x: np.ndarray, full_scale: int = 4095) -> np.ndarray:

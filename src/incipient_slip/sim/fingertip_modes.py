@@ -18,36 +18,38 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import kernels
 from .sos import SosFilter
 
 
 def mode_state(p: dict, a_mm: float, stick_area_ratio: float, shear_strain: float = 0.0,
                material_damping: float = 0.0):
     """Return (freq_hz, damping_ratio) arrays of the modes for contact radius a, stick-area ratio
-    (c/a)^2 and pad shear strain (bulk shear / pad thickness)."""
+    (c/a)^2 and pad shear strain (bulk shear / pad thickness):
+
+        freq = f0 sqrt(1 + fn_channel_gain (a / ref_radius) normal_stiffening
+                         + tangential_restraint sqrt(sar) + shear_stiffening |strain|)
+        zeta = z0 + friction_damping (1 - sar) + material_damping,  sar clipped to [0, 1]"""
     f0 = np.asarray(p["freq_hz"], float)
-    z0 = np.asarray(p["damping_ratio"], float)
-    rel = a_mm / p["ref_radius_mm"]
+    freq, zeta = np.empty(f0.size), np.empty(f0.size)
     sar = min(max(stick_area_ratio, 0.0), 1.0)
-    stiff = (1.0 + p["fn_channel_gain"] * rel * np.asarray(p["normal_stiffening"])
-             + np.asarray(p["tangential_restraint"]) * np.sqrt(sar)
-             + np.asarray(p["shear_stiffening"]) * abs(shear_strain))
-    freq = f0 * np.sqrt(stiff)
-    zeta = z0 + np.asarray(p["friction_damping"]) * (1.0 - sar) + material_damping
+    kernels.mode_state(f0, np.asarray(p["damping_ratio"], float), p["fn_channel_gain"] * (a_mm / p["ref_radius_mm"]),
+                       np.asarray(p["normal_stiffening"], float), np.asarray(p["tangential_restraint"], float),
+                       float(np.sqrt(sar)), np.asarray(p["shear_stiffening"], float), abs(shear_strain),
+                       np.asarray(p["friction_damping"], float), 1.0 - sar, material_damping, freq, zeta)
     return freq, zeta
 
 
 def mode_sos(p: dict, freq_hz: np.ndarray, zeta: np.ndarray, fs_hz: float) -> np.ndarray:
-    """Return the cascade of peaking biquads (n_modes, 6) for the given mode frequencies and damping."""
-    f = np.minimum(freq_hz, 0.45 * fs_hz)
-    gain = np.maximum(np.asarray(p["coupling"], float) / (2.0 * zeta), 1e-3)
-    amp = np.sqrt(gain)
-    w0 = 2 * np.pi * f / fs_hz
-    alpha = np.sin(w0) * zeta          # sin(w0) / (2 Q), Q = 1 / (2 zeta)
-    cw = -2.0 * np.cos(w0)
-    a0 = 1.0 + alpha / amp
-    sos = np.stack([(1.0 + alpha * amp) / a0, cw / a0, (1.0 - alpha * amp) / a0,
-                    np.ones_like(a0), cw / a0, (1.0 - alpha / amp) / a0], axis=1)
+    """Return the cascade of peaking biquads (n_modes, 6) for the given mode frequencies and damping:
+    peak gain max(coupling / (2 zeta), 1e-3) at min(freq, 0.45 fs) (audio-EQ cookbook peaking EQ,
+    alpha = sin(w0) zeta, i.e. Q = 1 / (2 zeta))."""
+    n = len(zeta)
+    w0, amp, sos = np.empty(n), np.empty(n), np.empty((n, 6))
+    zeta = np.asarray(zeta, float)
+    kernels.mode_w0(np.asarray(freq_hz, float), zeta, np.asarray(p["coupling"], float), 0.45 * fs_hz, fs_hz,
+                    2 * np.pi, w0, amp)
+    kernels.mode_sections(np.sin(w0), np.cos(w0), zeta, amp, sos)   # numpy's sin and cos (module docstring)
     return sos
 
 

@@ -1,0 +1,97 @@
+"""The signal path's arithmetic, compiled: the modal filter's coefficients, the electrodes' settling
+and noise, and the ADC conversions of one period.
+
+`Rig.step_period` runs ~450 x 1000 times per data set, and what it did between its few large
+array operations (random draws, the sos filters) was ~40 small numpy calls on arrays of 4-1100
+elements, each costing more in dispatch than in arithmetic. These loops do the same arithmetic
+in the same order with the same IEEE operations (+ - * / and sqrt, correctly rounded in numpy and
+in compiled code alike; no fast-math, so no fused multiply-add and no reassociation), so the
+results are identical bit for bit. Transcendental functions (sin, cos, the ** 1.5 of the
+electrodes) stay numpy calls between the kernels: numpy's SIMD loops may differ from libm in the
+last bit (see `mechanics`). np.minimum/np.maximum propagate NaN; the comparisons below are
+written so that they do too. tests/sim/test_dataset_and_cli.py asserts whole series against a
+reference computed before these kernels existed.
+
+Every compiled function of the signal path lives in this one file (numba's on-disk cache follows
+the file a function is defined in); none calls into another file.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def mode_state(f0, z0, normal_gain, normal_stiffening, tangential_restraint, sqrt_sar, shear_stiffening,
+               abs_strain, friction_damping, slip_fraction, material_damping, freq, zeta):
+    """Fill freq and zeta (fingertip_modes.mode_state's arithmetic)."""
+    for i in range(f0.size):
+        stiff = (1.0 + normal_gain * normal_stiffening[i] + tangential_restraint[i] * sqrt_sar
+                 + shear_stiffening[i] * abs_strain)
+        freq[i] = f0[i] * np.sqrt(stiff)
+        zeta[i] = z0[i] + friction_damping[i] * slip_fraction + material_damping
+
+
+@njit(cache=True)
+def mode_w0(freq, zeta, coupling, f_max, fs_hz, two_pi, w0, amp):
+    """Fill the modes' normalized frequencies w0 and peak amplitudes sqrt(gain) (mode_sos, part 1)."""
+    for i in range(freq.size):
+        f = f_max if freq[i] > f_max else freq[i]                       # np.minimum(freq, f_max)
+        gain = coupling[i] / (2.0 * zeta[i])
+        gain = 1e-3 if gain < 1e-3 else gain                            # np.maximum(gain, 1e-3)
+        amp[i] = np.sqrt(gain)
+        w0[i] = two_pi * f / fs_hz
+
+
+@njit(cache=True)
+def mode_sections(sin_w0, cos_w0, zeta, amp, sos):
+    """Fill the peaking biquads sos (n, 6) from sin(w0), cos(w0) (mode_sos, part 2)."""
+    for i in range(zeta.size):
+        alpha = sin_w0[i] * zeta[i]
+        cw = -2.0 * cos_w0[i]
+        a0 = 1.0 + alpha / amp[i]
+        sos[i, 0] = (1.0 + alpha * amp[i]) / a0
+        sos[i, 1] = cw / a0
+        sos[i, 2] = (1.0 - alpha * amp[i]) / a0
+        sos[i, 3] = 1.0
+        sos[i, 4] = cw / a0
+        sos[i, 5] = (1.0 - alpha / amp[i]) / a0
+
+
+@njit(cache=True)
+def electrode_counts(normal_force_kpa, share, baseline_kohm, kpa_sensitivity, out):
+    """Fill the settled counts (19,) from each electrode's share of the load, (w^2 / (w^2 + r^2))^1.5."""
+    for j in range(share.size):
+        z_kohm = baseline_kohm * (1.0 + kpa_sensitivity * (normal_force_kpa * share[j]))
+        out[j] = 4095.0 / (1.0 + z_kohm / 10.0)
+
+
+@njit(cache=True)
+def electrode_period(target, settled, settle_w, offset, drift, noise, out):
+    """Fill out (n, 19) with the settling means plus offsets, drift and noise, and move `settled`
+    to the last sample's mean (Electrodes.__call__)."""
+    n, m = noise.shape
+    for i in range(n):
+        for j in range(m):
+            mean = target[j] + (settled[j] - target[j]) * settle_w[i]
+            out[i, j] = mean + offset[j] + drift[j] + noise[i, j]
+            if i == n - 1:
+                settled[j] = mean
+
+
+@njit(cache=True)
+def pac_counts(x, inv_pa_per_count, lim, out):
+    """Fill int16 out with round(x / pa_per_count) clipped to +/- lim (adc.pac_to_counts); return
+    whether every x was finite."""
+    finite = True
+    for i in range(x.size):
+        v = x[i]
+        if not np.isfinite(v):
+            finite = False                    # the caller raises; the count is not used
+            out[i] = 0
+            continue
+        c = np.rint(v * inv_pa_per_count)
+        c = lim if c > lim else c
+        c = -lim if c < -lim else c
+        out[i] = np.int16(c)
+    return finite
