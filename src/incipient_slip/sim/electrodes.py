@@ -37,12 +37,10 @@ def play(x_in: float, target: float, half_width: float) -> float:
 def load_share(pos_mm: np.ndarray, center_mm: np.ndarray, p: dict, a_mm: float, shift_mm: float) -> np.ndarray:
     """Return each electrode's share (19,) of the contact load, (w^2 / (w^2 + r_e^2))^(3/2), for the
     electrode positions and contact centre (mm), contact radius a and inner-skin shift."""
-    c = center_mm + np.array([p["displacement_coupling"] * shift_mm, 0.0, 0.0])
-    d = pos_mm - c
-    d *= d
-    r2 = np.sum(d, axis=1)
     w2 = a_mm**2 + p["fluid_depth_mm"] ** 2
-    return (w2 / (w2 + r2)) ** 1.5
+    share = np.empty(len(pos_mm))
+    kernels.electrode_ratio(pos_mm, center_mm, p["displacement_coupling"] * shift_mm, w2, share)
+    return np.power(share, 1.5, out=share)                 # numpy's power (kernels' docstring)
 
 
 def electrode_counts_mean(p: dict, normal_force_kpa: float, a_mm: float, shift_mm: float,

@@ -59,6 +59,18 @@ def mode_sections(sin_w0, cos_w0, zeta, amp, sos):
 
 
 @njit(cache=True)
+def electrode_ratio(pos, center, shift_x, w2, out):
+    """Fill out (19,) with w^2 / (w^2 + r_e^2), r_e the distance of electrode e from the contact
+    centre shifted by shift_x along x (electrodes.load_share; r^2 summed x, y, z in that order, as
+    numpy's sum over an axis of 3 does)."""
+    cx, cy, cz = center[0] + shift_x, center[1] + 0.0, center[2] + 0.0
+    for j in range(pos.shape[0]):
+        dx, dy, dz = pos[j, 0] - cx, pos[j, 1] - cy, pos[j, 2] - cz
+        r2 = dx * dx + dy * dy + dz * dz
+        out[j] = w2 / (w2 + r2)
+
+
+@njit(cache=True)
 def electrode_counts(normal_force_kpa, share, baseline_kohm, kpa_sensitivity, out):
     """Fill the settled counts (19,) from each electrode's share of the load, (w^2 / (w^2 + r^2))^1.5."""
     for j in range(share.size):
