@@ -22,7 +22,8 @@ def pac_to_counts_finite(pac_pa: np.ndarray, pa_per_count: float, range_pa: floa
 
 def to_uint12(x: np.ndarray, full_scale: int = 4095) -> np.ndarray:
     """Return uint16 counts rounded and clipped to [0, full_scale]."""
-    x = np.rint(x)
-    np.minimum(x, full_scale, out=x)
-    np.maximum(x, 0, out=x)
-    return x.astype(np.uint16)
+    x = np.asarray(x, dtype=np.float64)
+    out = np.empty(x.shape, np.uint16)
+    kernels.uint12_counts(x.reshape(x.shape[0] if x.ndim else 1, -1), float(full_scale),
+                          out.reshape(x.shape[0] if x.ndim else 1, -1))
+    return out

@@ -107,3 +107,31 @@ def pac_counts(x, inv_pa_per_count, lim, out):
         c = -lim if c < -lim else c
         out[i] = np.int16(c)
     return finite
+
+
+@njit(cache=True)
+def uint12_counts(x, full_scale, out):
+    """Fill uint16 out (same shape as x) with round(x) clipped to [0, full_scale] (adc.to_uint12)."""
+    for i in range(x.shape[0]):
+        for j in range(x.shape[1]):
+            c = np.rint(x[i, j])
+            if np.isnan(c):
+                out[i, j] = 0                 # numpy's cast of nan on x86; not reached with finite inputs
+                continue
+            c = full_scale if c > full_scale else c
+            c = 0.0 if c < 0.0 else c
+            out[i, j] = np.uint16(c)
+
+
+@njit(cache=True)
+def pdc_counts(normal_force_kpa, draws, noise_kpa, baseline_counts, pa_per_count, out):
+    """Fill out with P_DC counts (pdc.pdc_counts): baseline + (F_N + noise) 1000 / pa_per_count."""
+    for i in range(draws.size):
+        out[i] = baseline_counts + (normal_force_kpa + draws[i] * noise_kpa) * 1000.0 / pa_per_count
+
+
+@njit(cache=True)
+def level_plus_noise(level, draws, noise, out):
+    """Fill out with level + draws * noise (temperature.temperature_counts)."""
+    for i in range(draws.size):
+        out[i] = level + draws[i] * noise

@@ -225,9 +225,9 @@ class Rig:
                 self.electrodes(rng["electrodes"], self.n_slow, fn_kpa if in_contact else 0.0, a_mm, shift,
                                 out=slow[:, :19])
             if self.has_pdc:
-                slow[:, 19] = pdc_counts(rng["pdc"], self.n_slow, fn_kpa, p["pdc"], p["adc"]["pdc_pa_per_count"])
+                pdc_counts(rng["pdc"], self.n_slow, fn_kpa, p["pdc"], p["adc"]["pdc_pa_per_count"], out=slow[:, 19])
             if self.has_temperature:
-                slow[:, 20], slow[:, 21] = temperature_counts(rng["temperature"], self.n_slow, p["temperature"])
+                temperature_counts(rng["temperature"], self.n_slow, p["temperature"], out=(slow[:, 20], slow[:, 21]))
             slow = adc.to_uint12(slow, int(p["adc"]["full_scale_counts"]))
             if self.electrodes is not None:
                 elec = slow[:, :19].copy()
