@@ -76,6 +76,7 @@ class Electrodes:
         self.pos = np.asarray(p["positions_mm"], float)
         self.center = np.asarray(p["contact_center_mm"], float)
         self.target = np.empty(len(self.pos))
+        self.baseline_kohm, self.kpa_sensitivity = float(p["baseline_kohm"]), float(p["kpa_sensitivity"])
 
     def inner_shift(self, pad_shear_mm: float, stiction_mm: float) -> float:
         """Return the inner skin's displacement after the pad sheared to pad_shear_mm (play operator)."""
@@ -94,12 +95,12 @@ class Electrodes:
             self.buf_drift = rng.standard_normal((self.block, 19)) * innov
             self.buf_noise = rng.standard_normal((self.block, n, 19)) * p["noise_counts"]
             self.i = 0
-        self.drift = self.drift * self.drift_decay + self.buf_drift[self.i]
-        noise = self.buf_noise[self.i]
+        i = self.i
         self.i += 1
-        electrode_counts_mean(p, normal_force_kpa, a_mm, shift_mm, self.pos, self.center, self.target)
         if self.settled is None:                                     # settling from the untouched pad
             self.settled = electrode_counts_mean(p, 0.0, 0.0, 0.0, self.pos, self.center)
         out = np.empty((n, 19)) if out is None else out
-        kernels.electrode_period(self.target, self.settled, self.settle_w, self.offset, self.drift, noise, out)
+        kernels.electrode_period(float(normal_force_kpa), load_share(self.pos, self.center, p, a_mm, shift_mm),
+                                 self.baseline_kohm, self.kpa_sensitivity, self.target, self.settled, self.settle_w,
+                                 self.offset, self.drift, self.drift_decay, self.buf_drift[i], self.buf_noise[i], out)
         return out

@@ -23,15 +23,17 @@ from .sos import SosFilter
 
 
 def mode_state(p: dict, a_mm: float, stick_area_ratio: float, shear_strain: float = 0.0,
-               material_damping: float = 0.0):
+               material_damping: float = 0.0, out: tuple[np.ndarray, np.ndarray] | None = None):
     """Return (freq_hz, damping_ratio) arrays of the modes for contact radius a, stick-area ratio
     (c/a)^2 and pad shear strain (bulk shear / pad thickness):
 
         freq = f0 sqrt(1 + fn_channel_gain (a / ref_radius) normal_stiffening
                          + tangential_restraint sqrt(sar) + shear_stiffening |strain|)
-        zeta = z0 + friction_damping (1 - sar) + material_damping,  sar clipped to [0, 1]"""
+        zeta = z0 + friction_damping (1 - sar) + material_damping,  sar clipped to [0, 1]
+
+    (into `out` = (freq, zeta) when given)"""
     f0 = np.asarray(p["freq_hz"], float)
-    freq, zeta = np.empty(f0.size), np.empty(f0.size)
+    freq, zeta = (np.empty(f0.size), np.empty(f0.size)) if out is None else out
     sar = min(max(stick_area_ratio, 0.0), 1.0)
     kernels.mode_state(f0, np.asarray(p["damping_ratio"], float), p["fn_channel_gain"] * (a_mm / p["ref_radius_mm"]),
                        np.asarray(p["normal_stiffening"], float), np.asarray(p["tangential_restraint"], float),
@@ -40,12 +42,14 @@ def mode_state(p: dict, a_mm: float, stick_area_ratio: float, shear_strain: floa
     return freq, zeta
 
 
-def mode_sos(p: dict, freq_hz: np.ndarray, zeta: np.ndarray, fs_hz: float) -> np.ndarray:
+def mode_sos(p: dict, freq_hz: np.ndarray, zeta: np.ndarray, fs_hz: float, out: np.ndarray | None = None,
+             work: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Return the cascade of peaking biquads (n_modes, 6) for the given mode frequencies and damping:
     peak gain max(coupling / (2 zeta), 1e-3) at min(freq, 0.45 fs) (audio-EQ cookbook peaking EQ,
-    alpha = sin(w0) zeta, i.e. Q = 1 / (2 zeta))."""
+    alpha = sin(w0) zeta, i.e. Q = 1 / (2 zeta)); into `out` when given (`work`: two scratch arrays)."""
     n = len(zeta)
-    w0, amp, sos = np.empty(n), np.empty(n), np.empty((n, 6))
+    w0, amp = (np.empty(n), np.empty(n)) if work is None else work
+    sos = np.empty((n, 6)) if out is None else out
     zeta = np.asarray(zeta, float)
     kernels.mode_w0(np.asarray(freq_hz, float), zeta, np.asarray(p["coupling"], float), 0.45 * fs_hz, fs_hz,
                     2 * np.pi, w0, amp)
@@ -61,6 +65,8 @@ class ModalPath:
         self.p = {k: (np.asarray(v, float) if isinstance(v, list) else v) for k, v in p.items()}
         self.filter = SosFilter(np.zeros((len(p["freq_hz"]), 6)))
         self.last_state: tuple[float, float, float] | None = None
+        n = len(p["freq_hz"])
+        self.buffers = [np.empty(n) for _ in range(4)]        # freq, zeta, w0, amp of the last call
 
     @property
     def zi(self) -> np.ndarray:
@@ -70,5 +76,6 @@ class ModalPath:
                  material_damping: float = 0.0) -> np.ndarray:
         """Filter x (contiguous float64, modified in place) with the modes of this contact state."""
         self.last_state = (a_mm, stick_area_ratio, shear_strain)
-        sos = mode_sos(self.p, *mode_state(self.p, a_mm, stick_area_ratio, shear_strain, material_damping), self.fs)
-        return self.filter.filter_inplace(x, sos)
+        freq, zeta, w0, amp = self.buffers
+        mode_state(self.p, a_mm, stick_area_ratio, shear_strain, material_damping, out=(freq, zeta))
+        return self.filter.filter_inplace(x, mode_sos(self.p, freq, zeta, self.fs, work=(w0, amp)))

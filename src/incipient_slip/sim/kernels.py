@@ -79,10 +79,15 @@ def electrode_counts(normal_force_kpa, share, baseline_kohm, kpa_sensitivity, ou
 
 
 @njit(cache=True)
-def electrode_period(target, settled, settle_w, offset, drift, noise, out):
-    """Fill out (n, 19) with the settling means plus offsets, drift and noise, and move `settled`
-    to the last sample's mean (Electrodes.__call__)."""
+def electrode_period(normal_force_kpa, share, baseline_kohm, kpa_sensitivity, target, settled, settle_w, offset,
+                     drift, drift_decay, drift_innovation, noise, out):
+    """One period of the electrodes (Electrodes.__call__): step the drift, fill `target` with the
+    settled counts of this contact (electrode_counts), out (n, 19) with the settling means plus
+    offsets, drift and noise, and move `settled` to the last sample's mean."""
     n, m = noise.shape
+    for j in range(m):
+        drift[j] = drift[j] * drift_decay + drift_innovation[j]
+    electrode_counts(normal_force_kpa, share, baseline_kohm, kpa_sensitivity, target)
     for i in range(n):
         for j in range(m):
             mean = target[j] + (settled[j] - target[j]) * settle_w[i]
