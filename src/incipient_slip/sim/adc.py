@@ -11,11 +11,15 @@ def pac_to_counts(pac_pa: np.ndarray, pa_per_count: float, range_pa: float) -> n
     return pac_to_counts_finite(pac_pa, pa_per_count, range_pa)[0]
 
 
-def pac_to_counts_finite(pac_pa: np.ndarray, pa_per_count: float, range_pa: float) -> tuple[np.ndarray, bool]:
-    """Return (pac_to_counts' counts, whether every P was finite); a non-finite P's count is 0."""
+def pac_to_counts_finite(pac_pa: np.ndarray, pa_per_count: float, range_pa: float,
+                         plus: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
+    """Return (pac_to_counts' counts of pac_pa (+ plus, added first, when given), whether every P
+    was finite); a non-finite P's count is 0."""
     x = np.ascontiguousarray(pac_pa, dtype=np.float64)
     out = np.empty(x.shape, np.int16)
-    finite = kernels.pac_counts(x.reshape(-1), 1.0 / pa_per_count, float(np.floor(range_pa / pa_per_count)),
+    if plus is not None:
+        plus = np.ascontiguousarray(plus, dtype=np.float64).reshape(-1)
+    finite = kernels.pac_counts(x.reshape(-1), plus, 1.0 / pa_per_count, float(np.floor(range_pa / pa_per_count)),
                                 out.reshape(-1))
     return out, finite
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
+from . import kernels
 from .sos import SosFilter
 
 
@@ -25,9 +26,8 @@ class AmbientNoise:
         periods (LTI filter with carried state: identical to period-by-period filtering)."""
         if self.i >= len(self.buf):
             w = rng.standard_normal((2, self.block * self.n))
-            y = self.filter.filter_inplace(w[0].copy())
-            y *= self.scale
-            y += w[1] * self.sensor_pa
+            y = self.filter.filter_inplace(w[0])                          # a contiguous row
+            kernels.scaled_sum(y, self.scale, w[1], self.sensor_pa, y)    # y scale + w1 sensor_pa
             self.buf = y.reshape(self.block, self.n)
             self.i = 0
         self.i += 1

@@ -97,12 +97,34 @@ def electrode_period(normal_force_kpa, share, baseline_kohm, kpa_sensitivity, ta
 
 
 @njit(cache=True)
-def pac_counts(x, inv_pa_per_count, lim, out):
-    """Fill int16 out with round(x / pa_per_count) clipped to +/- lim (adc.pac_to_counts); return
-    whether every x was finite."""
+def pac_drive(unit, gain, bursts, x):
+    """Fill x with the P_AC before the modes (Rig.step_period): 0 + unit * gain (the PZT; unit None
+    when it is off or absent) + bursts (None without the vibrotactile effect)."""
+    for i in range(x.size):
+        v = 0.0
+        if unit is not None:
+            v = v + unit[i] * gain
+        if bursts is not None:
+            v = v + bursts[i]
+        x[i] = v
+
+
+@njit(cache=True)
+def scaled_sum(a, a_scale, b, b_scale, out):
+    """Fill out with a * a_scale + b * b_scale (out may be a)."""
+    for i in range(out.size):
+        out[i] = a[i] * a_scale + b[i] * b_scale
+
+
+@njit(cache=True)
+def pac_counts(x, plus, inv_pa_per_count, lim, out):
+    """Fill int16 out with round((x + plus) / pa_per_count) clipped to +/- lim (adc.pac_to_counts;
+    plus None: x alone); return whether every x (+ plus) was finite."""
     finite = True
     for i in range(x.size):
         v = x[i]
+        if plus is not None:
+            v = v + plus[i]
         if not np.isfinite(v):
             finite = False                    # the caller raises; the count is not used
             out[i] = 0

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import adc, contact, mechanics, stick_slip
+from . import adc, contact, kernels, mechanics, stick_slip
 from .ambient_noise import AmbientNoise
 from .electrodes import Electrodes
 from .feasibility import material_mu
@@ -181,19 +181,19 @@ class Rig:
         pac = None
         if self.has_pac:
             n = self.n_pac
-            x = np.zeros(n)
+            # the PZT's band noise is drawn even when it is off (the streams stay aligned)
+            unit = self.band.next(rng["injection"]) if self.band is not None else None
+            gain = p["injection"]["pa_per_unit"] * 10.0 ** (self.pzt_db / 20.0) if self.pzt_on else 0.0
+            bursts = (bursts_pa(rng["vibrotactile"], n, self.fs, p["vibrotactile"], self.prev_sar - sar,
+                                slide_s, slide_t0, self.roughness, p["injection"]["pa_per_unit"])
+                      if self.has_vibrotactile else None)
+            x = np.empty(n)
+            kernels.pac_drive(unit if self.pzt_on else None, gain, bursts, x)
             # the PZT-absent twin (pac_without_pzt): the same sums in the same order, minus the PZT term
-            off = np.zeros(n) if self.pac_without_pzt else None
-            if self.band is not None:
-                unit = self.band.next(rng["injection"])            # drawn even when off: streams stay aligned
-                if self.pzt_on:
-                    x += unit * (p["injection"]["pa_per_unit"] * 10.0 ** (self.pzt_db / 20.0))
-            if self.has_vibrotactile:
-                bursts = bursts_pa(rng["vibrotactile"], n, self.fs, p["vibrotactile"], self.prev_sar - sar,
-                                   slide_s, slide_t0, self.roughness, p["injection"]["pa_per_unit"])
-                x += bursts
-                if off is not None:
-                    off += bursts
+            off = None
+            if self.pac_without_pzt:
+                off = np.empty(n)
+                kernels.pac_drive(None, 0.0, bursts, off)
             if self.modes is not None:
                 n_split = min(n, int(math.ceil((slide_t0 + slide_s) * self.fs))) if gross else 0
                 for part, s_part in ((slice(0, n_split), 0.0), (slice(n_split, n), sar)):
@@ -202,16 +202,12 @@ class Rig:
                         if off is not None:                # the same coefficients, the twin's own state
                             self.filter_without_pzt.filter_inplace(off[part], self.modes.filter.sos)
                 self.last_sar_seen["modes"] = self.modes.last_state[1]
-            if self.ambient is not None:
-                hum = self.ambient.next(rng["ambient"])
-                x += hum
-                if off is not None:
-                    off += hum
+            hum = self.ambient.next(rng["ambient"]) if self.ambient is not None else None
             ad = p["adc"]
-            pac, finite = adc.pac_to_counts_finite(x, ad["pac_pa_per_count"], ad["pac_range_pa"])
+            pac, finite = adc.pac_to_counts_finite(x, ad["pac_pa_per_count"], ad["pac_range_pa"], hum)
             if off is not None:
                 self.last_pac_without_pzt, finite_off = adc.pac_to_counts_finite(off, ad["pac_pa_per_count"],
-                                                                                 ad["pac_range_pa"])
+                                                                                 ad["pac_range_pa"], hum)
                 finite = finite and finite_off
             if not finite:
                 raise SimulationError(f"step {k_step}: non-finite P_AC (F_N={fn_kpa} kPa, s={s_ratio})")
