@@ -110,6 +110,13 @@ def pac_drive(unit, gain, bursts, x):
 
 
 @njit(cache=True)
+def add_at(x, index, values):
+    """x[index[k]] += values[k] for k in order (np.add.at's unbuffered, in-order sums)."""
+    for k in range(index.size):
+        x[index[k]] += values[k]
+
+
+@njit(cache=True)
 def scaled_sum(a, a_scale, b, b_scale, out):
     """Fill out with a * a_scale + b * b_scale (out may be a)."""
     for i in range(out.size):
