@@ -111,3 +111,22 @@ def test_block_generated_band_noise_equals_period_by_period_filtering():
         y, zi = signal.sosfilt(sos, raw[k * 1100:(k + 1) * 1100], zi=zi)
         parts.append(y)
     assert np.allclose(got, np.concatenate(parts), rtol=0, atol=1e-12)
+
+
+def test_no_kernel_compiles_or_loads_after_the_rig_is_built():
+    # the signal path's compiled kernels are loaded by Rig() (kernels.warm_up), for every argument
+    # type the periods pass, so no load or compile falls on a real-time driver's first period
+    import numba
+    from incipient_slip.sim import kernels
+    from incipient_slip.sim.dataset import simulate_series
+    dispatchers = {n: f for n, f in vars(kernels).items() if isinstance(f, numba.core.registry.CPUDispatcher)}
+    Rig(load_scene("paper"), "pla", 1)
+    before = {n: len(f.signatures) for n, f in dispatchers.items()}
+    simulate_series(load_scene("paper"), "pla", 5, 450, [load_scene("no_injection"), load_scene("electrodes_only")])
+    for name in ("no_injection", "electrodes_only"):
+        simulate_series(load_scene(name), "tpu", 7, 100)
+    rig = Rig(load_scene("paper"), "abs", 3)
+    rig.set_injection(False)
+    for _ in range(3):
+        rig.step_period(2.0)
+    assert {n: len(f.signatures) for n, f in dispatchers.items()} == before

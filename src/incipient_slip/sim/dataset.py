@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..cluster import as_done
+from . import kernels, mechanics
 from .protocols import run_collection
 from .rig import Rig, series_seed
 from .scene import Scene
@@ -174,6 +175,8 @@ def write_dataset(scene: Scene, n_series: int, seed: int, out_dir: str | Path, *
             if bar:
                 bar.update()
     else:
+        mechanics.warm_up()          # load the compiled code once here: the forked workers inherit it
+        kernels.warm_up()
         with ProcessPoolExecutor(max_workers=workers) as pool:
             for _ in pool.map(_worker, jobs, chunksize=1):
                 if bar:

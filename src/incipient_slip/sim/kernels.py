@@ -169,3 +169,39 @@ def level_plus_noise(level, draws, noise, out):
     """Fill out with level + draws * noise (temperature.temperature_counts)."""
     for i in range(draws.size):
         out[i] = level + draws[i] * noise
+
+
+_warm = False
+
+
+def warm_up() -> None:
+    """Load every kernel, for each argument layout the rig passes, once per process (from numba's
+    cache, or compiled on a fresh checkout), so that it does not fall on a real-time driver's first
+    period (as `mechanics.warm_up`)."""
+    global _warm
+    if _warm:
+        return
+    v, w, o = np.ones(3), np.ones(3), np.empty(3)
+    mode_state(v, v, 0.5, v, v, 0.5, v, 0.5, v, 0.5, 0.0, o, np.empty(3))
+    mode_w0(v, v, v, 1.0, 2.0, 6.0, o, np.empty(3))
+    mode_sections(v, v, v, v, np.empty((3, 6)))
+    slow = np.zeros((2, 22))
+    electrode_ratio(np.ones((3, 3)), v, 0.0, 1.0, o)
+    electrode_counts(1.0, v, 1.0, 1.0, o)
+    for out in (slow[:, :3], np.empty((2, 3))):                  # into the slow block, or a fresh array
+        electrode_period(1.0, v, 1.0, 1.0, o, np.ones(3), np.ones(2), v, np.ones(3), 0.5, w, np.ones((2, 3)), out)
+    pdc_counts(1.0, np.ones(2), 1.0, 1.0, 1.0, slow[:, 19])
+    pdc_counts(1.0, np.ones(2), 1.0, 1.0, 1.0, np.empty(2))
+    for draws in (np.ones((2, 2))[0], np.ones(2)):
+        for out in (slow[:, 20], np.empty(2)):
+            level_plus_noise(1.0, draws, 1.0, out)
+    uint12_counts(slow, 4095.0, np.empty((2, 22), np.uint16))
+    x = np.empty(3)
+    for unit in (None, v):
+        for bursts in (None, w):
+            pac_drive(unit, 1.0, bursts, x)
+    for plus in (None, w):
+        pac_counts(v, plus, 1.0, 10.0, np.empty(3, np.int16))
+    scaled_sum(v, 1.0, w, 1.0, x)
+    add_at(x, np.zeros(2, np.int64), np.ones(2))
+    _warm = True

@@ -118,6 +118,7 @@ class Rig:
                   "mocap_noise_mm": p["mocap"]["noise_mm"] if "mocap" in p else 0.0}
         self.mech_params = np.array([float(values[name]) for name in mechanics.PARAMS])
         mechanics.warm_up()                              # once per process, not in the first period
+        kernels.warm_up()
         self.k_period = 0
         self.prev_sar = 1.0
         has = scene.has
