@@ -35,10 +35,11 @@ def mode_state(p: dict, a_mm: float, stick_area_ratio: float, shear_strain: floa
     f0 = np.asarray(p["freq_hz"], float)
     freq, zeta = (np.empty(f0.size), np.empty(f0.size)) if out is None else out
     sar = min(max(stick_area_ratio, 0.0), 1.0)
-    kernels.mode_state(f0, np.asarray(p["damping_ratio"], float), p["fn_channel_gain"] * (a_mm / p["ref_radius_mm"]),
+    kernels.mode_state(f0, np.asarray(p["damping_ratio"], float),
+                       float(p["fn_channel_gain"] * (a_mm / p["ref_radius_mm"])),
                        np.asarray(p["normal_stiffening"], float), np.asarray(p["tangential_restraint"], float),
-                       float(np.sqrt(sar)), np.asarray(p["shear_stiffening"], float), abs(shear_strain),
-                       np.asarray(p["friction_damping"], float), 1.0 - sar, material_damping, freq, zeta)
+                       float(np.sqrt(sar)), np.asarray(p["shear_stiffening"], float), float(abs(shear_strain)),
+                       np.asarray(p["friction_damping"], float), float(1.0 - sar), float(material_damping), freq, zeta)
     return freq, zeta
 
 
@@ -51,8 +52,8 @@ def mode_sos(p: dict, freq_hz: np.ndarray, zeta: np.ndarray, fs_hz: float, out: 
     w0, amp = (np.empty(n), np.empty(n)) if work is None else work
     sos = np.empty((n, 6)) if out is None else out
     zeta = np.asarray(zeta, float)
-    kernels.mode_w0(np.asarray(freq_hz, float), zeta, np.asarray(p["coupling"], float), 0.45 * fs_hz, fs_hz,
-                    2 * np.pi, w0, amp)
+    kernels.mode_w0(np.asarray(freq_hz, float), zeta, np.asarray(p["coupling"], float), float(0.45 * fs_hz),
+                    float(fs_hz), 2 * np.pi, w0, amp)
     kernels.mode_sections(np.sin(w0), np.cos(w0), zeta, amp, sos)   # numpy's sin and cos (module docstring)
     return sos
 
