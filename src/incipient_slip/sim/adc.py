@@ -3,7 +3,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import kernels
+_kernels = None
+
+
+def _compiled():
+    """The compiled conversions (`sim.kernels`), imported on first use: importing this module
+    stays light (numpy only; no numba)."""
+    global _kernels
+    if _kernels is None:
+        from . import kernels
+        _kernels = kernels
+    return _kernels
 
 
 def pac_to_counts(pac_pa: np.ndarray, pa_per_count: float, range_pa: float) -> np.ndarray:
@@ -19,8 +29,8 @@ def pac_to_counts_finite(pac_pa: np.ndarray, pa_per_count: float, range_pa: floa
     out = np.empty(x.shape, np.int16)
     if plus is not None:
         plus = np.ascontiguousarray(plus, dtype=np.float64).reshape(-1)
-    finite = kernels.pac_counts(x.reshape(-1), plus, 1.0 / pa_per_count, float(np.floor(range_pa / pa_per_count)),
-                                out.reshape(-1))
+    finite = _compiled().pac_counts(x.reshape(-1), plus, 1.0 / pa_per_count,
+                                    float(np.floor(range_pa / pa_per_count)), out.reshape(-1))
     return out, finite
 
 
@@ -28,6 +38,6 @@ def to_uint12(x: np.ndarray, full_scale: int = 4095) -> np.ndarray:
     """Return uint16 counts rounded and clipped to [0, full_scale]."""
     x = np.asarray(x, dtype=np.float64)
     out = np.empty(x.shape, np.uint16)
-    kernels.uint12_counts(x.reshape(x.shape[0] if x.ndim else 1, -1), float(full_scale),
-                          out.reshape(x.shape[0] if x.ndim else 1, -1))
+    _compiled().uint12_counts(x.reshape(x.shape[0] if x.ndim else 1, -1), float(full_scale),
+                              out.reshape(x.shape[0] if x.ndim else 1, -1))
     return out
