@@ -62,6 +62,23 @@ def test_fast_sos_path_equals_scipy_sosfilt():
     assert np.array_equal(y1, y2) and np.array_equal(z1, z2)
 
 
+def test_paired_sos_kernel_equals_scipy_sosfilt_on_each_signal():
+    # the modal filter and its PZT-absent twin run in one loop (kernels.sosfilt_pair): each signal
+    # must get exactly scipy's sosfilt, from its own state, whatever the other does
+    from incipient_slip.sim import kernels
+    rng = np.random.default_rng(3)
+    for sos in (signal.butter(4, [20, 900], btype="bandpass", fs=2200, output="sos"),
+                signal.butter(2, 30, fs=2200, output="sos"), rng.normal(0, 0.3, (4, 6))):
+        sos[:, 3] = 1.0
+        for scale in (1e-3, 1.0, 1e3):
+            x, y = rng.standard_normal(1100) * scale, rng.standard_normal(1100)
+            zx, zy = rng.standard_normal((len(sos), 2)), rng.standard_normal((len(sos), 2))
+            want_x, want_y = signal.sosfilt(sos, x, zi=zx), signal.sosfilt(sos, y, zi=zy)
+            kernels.sosfilt_pair(np.ascontiguousarray(sos), x, zx, y, zy)
+            for got, want in ((x, want_x[0]), (zx, want_x[1]), (y, want_y[0]), (zy, want_y[1])):
+                assert np.array_equal(got, want)
+
+
 def test_series_seed_depends_on_dataset_seed_and_index():
     seeds = {series_seed(s, i) for s in range(3) for i in range(50)}
     assert len(seeds) == 150 and all(0 <= s < 2**63 for s in seeds)

@@ -74,9 +74,17 @@ class ModalPath:
         return self.filter.zi
 
     def __call__(self, x: np.ndarray, a_mm: float, stick_area_ratio: float, shear_strain: float = 0.0,
-                 material_damping: float = 0.0) -> np.ndarray:
-        """Filter x (contiguous float64, modified in place) with the modes of this contact state."""
+                 material_damping: float = 0.0, twin: tuple[np.ndarray, SosFilter] | None = None) -> np.ndarray:
+        """Filter x (contiguous float64, modified in place) with the modes of this contact state;
+        twin = (y, its filter): filter y too, with the same coefficients from its own filter's
+        state (the PZT-absent twin of `Rig`), in the same loop."""
         self.last_state = (a_mm, stick_area_ratio, shear_strain)
         freq, zeta, w0, amp = self.buffers
         mode_state(self.p, a_mm, stick_area_ratio, shear_strain, material_damping, out=(freq, zeta))
-        return self.filter.filter_inplace(x, mode_sos(self.p, freq, zeta, self.fs, work=(w0, amp)))
+        sos = mode_sos(self.p, freq, zeta, self.fs, work=(w0, amp))
+        if twin is None:
+            return self.filter.filter_inplace(x, sos)
+        y, other = twin
+        self.filter.sos = other.sos = sos
+        kernels.sosfilt_pair(sos, x, self.filter.z[0], y, other.z[0])
+        return x

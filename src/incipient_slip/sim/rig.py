@@ -198,10 +198,9 @@ class Rig:
             if self.modes is not None:
                 n_split = min(n, int(math.ceil((slide_t0 + slide_s) * self.fs))) if gross else 0
                 for part, s_part in ((slice(0, n_split), 0.0), (slice(n_split, n), sar)):
-                    if part.stop > part.start:
-                        self.modes(x[part], a_mm, s_part, shear_strain, self.material_damping)
-                        if off is not None:                # the same coefficients, the twin's own state
-                            self.filter_without_pzt.filter_inplace(off[part], self.modes.filter.sos)
+                    if part.stop > part.start:             # the twin: the same coefficients, its own state
+                        self.modes(x[part], a_mm, s_part, shear_strain, self.material_damping,
+                                   twin=None if off is None else (off[part], self.filter_without_pzt))
                 self.last_sar_seen["modes"] = self.modes.last_state[1]
             hum = self.ambient.next(rng["ambient"]) if self.ambient is not None else None
             ad = p["adc"]
