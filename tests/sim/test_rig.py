@@ -62,21 +62,26 @@ def test_fast_sos_path_equals_scipy_sosfilt():
     assert np.array_equal(y1, y2) and np.array_equal(z1, z2)
 
 
-def test_paired_sos_kernel_equals_scipy_sosfilt_on_each_signal():
-    # the modal filter and its PZT-absent twin run in one loop (kernels.sosfilt_pair): each signal
-    # must get exactly scipy's sosfilt, from its own state, whatever the other does
-    from incipient_slip.sim import kernels
+def test_paired_sos_filtering_equals_scipy_sosfilt_on_each_signal():
+    # the modal filter and its PZT-absent twin, and the band and ambient noise blocks, are filtered
+    # two at a time in one loop (sos.filter_pair): each signal must get exactly scipy's sosfilt
+    # from its own state, whatever the other's sections and signal are
+    from incipient_slip.sim.sos import SosFilter, filter_pair
     rng = np.random.default_rng(3)
-    for sos in (signal.butter(4, [20, 900], btype="bandpass", fs=2200, output="sos"),
-                signal.butter(2, 30, fs=2200, output="sos"), rng.normal(0, 0.3, (4, 6))):
-        sos[:, 3] = 1.0
-        for scale in (1e-3, 1.0, 1e3):
-            x, y = rng.standard_normal(1100) * scale, rng.standard_normal(1100)
-            zx, zy = rng.standard_normal((len(sos), 2)), rng.standard_normal((len(sos), 2))
-            want_x, want_y = signal.sosfilt(sos, x, zi=zx), signal.sosfilt(sos, y, zi=zy)
-            kernels.sosfilt_pair(np.ascontiguousarray(sos), x, zx, y, zy)
-            for got, want in ((x, want_x[0]), (zx, want_x[1]), (y, want_y[0]), (zy, want_y[1])):
-                assert np.array_equal(got, want)
+    random_sos = rng.normal(0, 0.3, (4, 6))
+    random_sos[:, 3] = 1.0
+    filters = (signal.butter(4, [20, 900], btype="bandpass", fs=2200, output="sos"),
+               signal.butter(2, 30, fs=2200, output="sos"), random_sos)
+    for sos_a in filters:
+        for sos_b in filters:
+            for scale in (1e-3, 1.0, 1e3):
+                x, y = rng.standard_normal(1100) * scale, rng.standard_normal(1100)
+                a, b = SosFilter(sos_a), SosFilter(sos_b)
+                a.z[0], b.z[0] = rng.standard_normal((len(sos_a), 2)), rng.standard_normal((len(sos_b), 2))
+                want_x, want_y = signal.sosfilt(sos_a, x, zi=a.zi), signal.sosfilt(sos_b, y, zi=b.zi)
+                filter_pair(a, x, b, y)
+                for got, want in ((x, want_x[0]), (a.zi, want_x[1]), (y, want_y[0]), (b.zi, want_y[1])):
+                    assert np.array_equal(got, want)
 
 
 def test_series_seed_depends_on_dataset_seed_and_index():

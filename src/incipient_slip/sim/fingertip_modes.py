@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import kernels
-from .sos import SosFilter
+from .sos import SosFilter, filter_pair
 
 
 def mode_state(p: dict, a_mm: float, stick_area_ratio: float, shear_strain: float = 0.0,
@@ -85,6 +85,6 @@ class ModalPath:
         if twin is None:
             return self.filter.filter_inplace(x, sos)
         y, other = twin
-        self.filter.sos = other.sos = sos
-        kernels.sosfilt_pair(sos, x, self.filter.z[0], y, other.z[0])
+        self.filter.sos = other.sos = np.ascontiguousarray(sos)
+        filter_pair(self.filter, x, other, y)
         return x

@@ -172,25 +172,26 @@ def level_plus_noise(level, draws, noise, out):
 
 
 @njit(cache=True)
-def sosfilt_pair(sos, x, zx, y, zy):
-    """Filter x and y in place through the same sections sos (n, 6), each from its own state (zx,
-    zy: (n, 2), updated in place): scipy.signal.sosfilt's transposed direct form II, its operations
-    in its order (`_sosfilt_float`), for both signals in one loop. Each recursion is latency-bound
-    (~6 ns a sample here); two independent ones interleave, so the second costs little."""
-    n_sections = sos.shape[0]
+def sosfilt_pair(sos_x, x, zx, sos_y, y, zy):
+    """Filter x through the sections sos_x (n, 6) from the state zx (n, 2) and y through sos_y from
+    zy, in place (states updated): scipy.signal.sosfilt's transposed direct form II, its
+    operations in its order (`_sosfilt_float`), for both signals (of one length) in one loop. Each
+    recursion is latency-bound (~6 ns a sample here); two independent ones interleave, so the
+    second costs little (`sos.filter_pair`)."""
     for n in range(x.size):
         x_cur = x[n]
-        y_cur = y[n]
-        for s in range(n_sections):
-            x_new = sos[s, 0] * x_cur + zx[s, 0]
-            zx[s, 0] = sos[s, 1] * x_cur - sos[s, 4] * x_new + zx[s, 1]
-            zx[s, 1] = sos[s, 2] * x_cur - sos[s, 5] * x_new
+        for s in range(sos_x.shape[0]):
+            x_new = sos_x[s, 0] * x_cur + zx[s, 0]
+            zx[s, 0] = sos_x[s, 1] * x_cur - sos_x[s, 4] * x_new + zx[s, 1]
+            zx[s, 1] = sos_x[s, 2] * x_cur - sos_x[s, 5] * x_new
             x_cur = x_new
-            y_new = sos[s, 0] * y_cur + zy[s, 0]
-            zy[s, 0] = sos[s, 1] * y_cur - sos[s, 4] * y_new + zy[s, 1]
-            zy[s, 1] = sos[s, 2] * y_cur - sos[s, 5] * y_new
-            y_cur = y_new
         x[n] = x_cur
+        y_cur = y[n]
+        for s in range(sos_y.shape[0]):
+            y_new = sos_y[s, 0] * y_cur + zy[s, 0]
+            zy[s, 0] = sos_y[s, 1] * y_cur - sos_y[s, 4] * y_new + zy[s, 1]
+            zy[s, 1] = sos_y[s, 2] * y_cur - sos_y[s, 5] * y_new
+            y_cur = y_new
         y[n] = y_cur
 
 
@@ -227,5 +228,5 @@ def warm_up() -> None:
         pac_counts(v, plus, 1.0, 10.0, np.empty(3, np.int16))
     scaled_sum(v, 1.0, w, 1.0, x)
     add_at(x, np.zeros(2, np.int64), np.ones(2))
-    sosfilt_pair(np.ones((2, 6)), np.ones(3), np.zeros((2, 2)), np.ones(3), np.zeros((2, 2)))
+    sosfilt_pair(np.ones((2, 6)), np.ones(3), np.zeros((2, 2)), np.ones((1, 6)), np.ones(3), np.zeros((1, 2)))
     _warm = True

@@ -27,7 +27,7 @@ from .fingertip_modes import ModalPath
 from .injection import PztSource
 from .mocap import mocap_samples
 from .pdc import pdc_counts
-from .sos import SosFilter
+from .sos import SosFilter, filter_pair
 from .scene import Scene, load_scene  # noqa: F401  (re-exported)
 from .stick_slip import ContactState, SimulationError, raise_status
 from .temperature import temperature_counts
@@ -182,6 +182,12 @@ class Rig:
         pac = None
         if self.has_pac:
             n = self.n_pac
+            if self.band is not None and self.ambient is not None and self.band.due and self.ambient.due:
+                # both noises start a block: their filters run in one loop (sos.filter_pair)
+                x, y = self.band.draw(rng["injection"]), self.ambient.draw(rng["ambient"])
+                filter_pair(self.band.filter, x, self.ambient.filter, y)
+                self.band.fill(x)
+                self.ambient.fill(y)
             # the PZT's band noise is drawn even when it is off (the streams stay aligned)
             unit = self.band.next(rng["injection"]) if self.band is not None else None
             gain = p["injection"]["pa_per_unit"] * 10.0 ** (self.pzt_db / 20.0) if self.pzt_on else 0.0
