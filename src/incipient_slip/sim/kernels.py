@@ -171,28 +171,28 @@ def level_plus_noise(level, draws, noise, out):
         out[i] = level + draws[i] * noise
 
 
+@njit(cache=True, inline="always")
+def _cascade(sos, x, z):
+    """Return one sample x through the sections sos (n, 6), updating their states z (n, 2):
+    scipy.signal.sosfilt's transposed direct form II, its operations in its order
+    (`_sosfilt_float`)."""
+    for s in range(sos.shape[0]):
+        x_new = sos[s, 0] * x + z[s, 0]
+        z[s, 0] = sos[s, 1] * x - sos[s, 4] * x_new + z[s, 1]
+        z[s, 1] = sos[s, 2] * x - sos[s, 5] * x_new
+        x = x_new
+    return x
+
+
 @njit(cache=True)
 def sosfilt_pair(sos_x, x, zx, sos_y, y, zy):
-    """Filter x through the sections sos_x (n, 6) from the state zx (n, 2) and y through sos_y from
-    zy, in place (states updated): scipy.signal.sosfilt's transposed direct form II, its
-    operations in its order (`_sosfilt_float`), for both signals (of one length) in one loop. Each
-    recursion is latency-bound (~6 ns a sample here); two independent ones interleave, so the
-    second costs little (`sos.filter_pair`)."""
+    """Filter x through the sections sos_x from the state zx and y through sos_y from zy, in place
+    (states updated), both signals (of one length) in one loop. Each recursion is latency-bound
+    (~6 ns a sample here); two independent ones interleave, so the second costs little
+    (`sos.filter_pair`)."""
     for n in range(x.size):
-        x_cur = x[n]
-        for s in range(sos_x.shape[0]):
-            x_new = sos_x[s, 0] * x_cur + zx[s, 0]
-            zx[s, 0] = sos_x[s, 1] * x_cur - sos_x[s, 4] * x_new + zx[s, 1]
-            zx[s, 1] = sos_x[s, 2] * x_cur - sos_x[s, 5] * x_new
-            x_cur = x_new
-        x[n] = x_cur
-        y_cur = y[n]
-        for s in range(sos_y.shape[0]):
-            y_new = sos_y[s, 0] * y_cur + zy[s, 0]
-            zy[s, 0] = sos_y[s, 1] * y_cur - sos_y[s, 4] * y_new + zy[s, 1]
-            zy[s, 1] = sos_y[s, 2] * y_cur - sos_y[s, 5] * y_new
-            y_cur = y_new
-        y[n] = y_cur
+        x[n] = _cascade(sos_x, x[n], zx)
+        y[n] = _cascade(sos_y, y[n], zy)
 
 
 _warm = False
