@@ -13,7 +13,12 @@
    against REV, in interleaved fresh processes (`--repeats` each; the first, untimed evaluation
    of each process takes the imports and the compiled code's load): wall and CPU medians with
    spread, their ratio, and whether the two summaries are identical (they must be).
-5. `--dask-vs-pool N`: wall time of one data set of N series (scene paper, 450 steps) written by
+5. `--series-against REV`: one data-set series (`sim.dataset.simulate_series`, 450 steps) of
+   scene paper alone and of paper with its no_injection view (as the studies write them), this
+   checkout against REV, in interleaved fresh processes (`--repeats` each, `--series-per-run`
+   series per process after an untimed one): CPU seconds per series, medians with spread, their
+   ratio, and whether every array of every series is identical (it must be).
+6. `--dask-vs-pool N`: wall time of one data set of N series (scene paper, 450 steps) written by
    the local process pool and by dask tasks on a LocalCluster of the same worker count (its
    start-up and shut-down included), interleaved, median of `--repeats`; the arrays are checked
    equal. This is what decides `slip dataset`'s default (docs/performance.md).
@@ -151,6 +156,50 @@ def stage1_against(rev: str, repeats: int, size: str) -> int:
     return 0 if same else 1
 
 
+_SERIES = """
+import hashlib, os, sys, time
+from incipient_slip.sim import load_scene
+from incipient_slip.sim.dataset import simulate_series
+paper, views = load_scene("paper"), [load_scene("no_injection")]
+simulate_series(paper, "pla", 1, 3, views)          # imports and the compiled code's load, untimed
+k, start = int(sys.argv[1]), int(sys.argv[2])
+h = hashlib.sha256()
+out = {"load": os.getloadavg()[0]}
+for name, vs in (("paper", []), ("paper+no_injection", views)):
+    c = time.process_time()
+    for i in range(start, start + k):
+        res = simulate_series(paper, paper.materials[i % len(paper.materials)], 2000 + i, 450, vs)
+        for d in res if vs else [res]:
+            for key in sorted(d):
+                h.update(key.encode() + d[key].tobytes())
+    out[name] = (time.process_time() - c) / k
+out["digest"] = h.hexdigest()
+print(repr(out))
+"""
+
+
+def series_against(rev: str, repeats: int, per_run: int) -> int:
+    """Print the CPU time of one data-set series, this checkout against rev; return an exit code."""
+    print(f"data-set series (simulate_series, 450 steps), this checkout vs {rev}, {repeats} interleaved fresh "
+          f"processes each of {per_run} series per case; load average at start {os.getloadavg()[0]:.1f}")
+    runs = _interleaved(rev, repeats, _SERIES, lambda r: (str(per_run), str(r * per_run)))
+    if isinstance(runs, int):
+        return runs
+    loads = [row["load"] for rows in runs.values() for row in rows]
+    for case in ("paper", "paper+no_injection"):
+        for tag, rows in runs.items():
+            cpu = [row[case] for row in rows]
+            print(f"  {case:20s} {tag:10s} CPU per series median {statistics.median(cpu):6.3f} s "
+                  f"(min {min(cpu):.3f}, max {max(cpu):.3f})")
+        ratios = [b[case] / a[case] for a, b in zip(runs["this"], runs[rev])]
+        print(f"  {case:20s} {rev} / this: median {statistics.median(ratios):.2f}x "
+              f"(min {min(ratios):.2f}, max {max(ratios):.2f})")
+    same = all(a["digest"] == b["digest"] for a, b in zip(runs["this"], runs[rev]))
+    print(f"every array identical: {same}; load average {min(loads):.1f}..{max(loads):.1f} during, "
+          f"{os.getloadavg()[0]:.1f} at end")
+    return 0 if same else 1
+
+
 def dask_vs_pool(n_series: int, workers: int, repeats: int, steps: int = 450) -> int:
     """Print pool vs dask LocalCluster wall times of one data set, side by side; return an exit code."""
     import numpy as np
@@ -197,6 +246,10 @@ def main(argv=None) -> int:
                     help="only compare one stage-1 calibration evaluation with git revision REV side by side")
     ap.add_argument("--stage1-size", dest="stage1_size", default="100,6", metavar="N,R",
                     help="collection series and no-action runs per material of --stage1-against (default 100,6)")
+    ap.add_argument("--series-against", dest="series_against", metavar="REV",
+                    help="only compare the CPU time of one data-set series with git revision REV side by side")
+    ap.add_argument("--series-per-run", dest="series_per_run", type=int, default=4, metavar="K",
+                    help="series per case in each process of --series-against (default 4)")
     ap.add_argument("--dask-vs-pool", dest="dask_vs_pool", type=int, metavar="N",
                     help="only compare pool and dask LocalCluster wall time of an N-series data set")
     ap.add_argument("--steps", type=int, default=450, help="periods per series for --dask-vs-pool (default 450)")
@@ -207,6 +260,8 @@ def main(argv=None) -> int:
         return against(args.against, args.repeats)
     if args.stage1_against:
         return stage1_against(args.stage1_against, args.repeats, args.stage1_size)
+    if args.series_against:
+        return series_against(args.series_against, args.repeats, args.series_per_run)
     print(f"machine: {os.cpu_count()} cores; workers = {args.workers}; load average at start {os.getloadavg()[0]:.1f}")
     print("per-period cost (one 500 ms period, single process):")
     med = {}

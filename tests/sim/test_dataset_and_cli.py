@@ -163,3 +163,25 @@ def test_views_that_do_not_follow_from_the_run_are_refused():
     with pytest.raises(ValueError):                  # a louder PZT is not the same P_AC
         import dataclasses
         view_kind(dataclasses.replace(paper, injection_db=6.0), paper)
+
+
+def test_series_are_bit_identical_to_the_committed_reference():
+    # every array of data-collection series (each scene, material, two seeds), series written with
+    # views, a parameter variant and closed-loop runs (PZT switched, actuator held), the signal
+    # path's floats behind the counts (filter and electrode states after every period, its
+    # functions' unquantized outputs) equal, bit for bit, what the simulator computed when
+    # tests/data/sim_series.json was written (speed work must not change results;
+    # make_sim_series.py says when to regenerate it)
+    import importlib.util
+    import json
+    from pathlib import Path
+    data = Path(__file__).resolve().parents[1] / "data"
+    spec = importlib.util.spec_from_file_location("make_sim_series", data / "make_sim_series.py")
+    make = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(make)
+    recorded = json.loads((data / "sim_series.json").read_text())
+    got = make.digests()
+    assert set(got) == set(recorded)
+    differ = {case: [k for k in recorded[case] if got[case].get(k) != recorded[case][k]]
+              for case in recorded if got[case] != recorded[case]}
+    assert not differ, f"arrays differ from the reference: {differ}"

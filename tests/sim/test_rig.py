@@ -62,6 +62,28 @@ def test_fast_sos_path_equals_scipy_sosfilt():
     assert np.array_equal(y1, y2) and np.array_equal(z1, z2)
 
 
+def test_paired_sos_filtering_equals_scipy_sosfilt_on_each_signal():
+    # the modal filter and its PZT-absent twin, and the band and ambient noise blocks, are filtered
+    # two at a time in one loop (sos.filter_pair): each signal must get exactly scipy's sosfilt
+    # from its own state, whatever the other's sections and signal are
+    from incipient_slip.sim.sos import SosFilter, filter_pair
+    rng = np.random.default_rng(3)
+    random_sos = rng.normal(0, 0.3, (4, 6))
+    random_sos[:, 3] = 1.0
+    filters = (signal.butter(4, [20, 900], btype="bandpass", fs=2200, output="sos"),
+               signal.butter(2, 30, fs=2200, output="sos"), random_sos)
+    for sos_a in filters:
+        for sos_b in filters:
+            for scale in (1e-3, 1.0, 1e3):
+                x, y = rng.standard_normal(1100) * scale, rng.standard_normal(1100)
+                a, b = SosFilter(sos_a), SosFilter(sos_b)
+                a.z[0], b.z[0] = rng.standard_normal((len(sos_a), 2)), rng.standard_normal((len(sos_b), 2))
+                want_x, want_y = signal.sosfilt(sos_a, x, zi=a.zi), signal.sosfilt(sos_b, y, zi=b.zi)
+                filter_pair(a, x, b, y)
+                for got, want in ((x, want_x[0]), (a.zi, want_x[1]), (y, want_y[0]), (b.zi, want_y[1])):
+                    assert np.array_equal(got, want)
+
+
 def test_series_seed_depends_on_dataset_seed_and_index():
     seeds = {series_seed(s, i) for s in range(3) for i in range(50)}
     assert len(seeds) == 150 and all(0 <= s < 2**63 for s in seeds)
@@ -111,3 +133,22 @@ def test_block_generated_band_noise_equals_period_by_period_filtering():
         y, zi = signal.sosfilt(sos, raw[k * 1100:(k + 1) * 1100], zi=zi)
         parts.append(y)
     assert np.allclose(got, np.concatenate(parts), rtol=0, atol=1e-12)
+
+
+def test_no_kernel_compiles_or_loads_after_the_rig_is_built():
+    # the signal path's compiled kernels are loaded by Rig() (kernels.warm_up), for every argument
+    # type the periods pass, so no load or compile falls on a real-time driver's first period
+    import numba
+    from incipient_slip.sim import kernels
+    from incipient_slip.sim.dataset import simulate_series
+    dispatchers = {n: f for n, f in vars(kernels).items() if isinstance(f, numba.core.registry.CPUDispatcher)}
+    Rig(load_scene("paper"), "pla", 1)
+    before = {n: len(f.signatures) for n, f in dispatchers.items()}
+    simulate_series(load_scene("paper"), "pla", 5, 450, [load_scene("no_injection"), load_scene("electrodes_only")])
+    for name in ("no_injection", "electrodes_only"):
+        simulate_series(load_scene(name), "tpu", 7, 100)
+    rig = Rig(load_scene("paper"), "abs", 3)
+    rig.set_injection(False)
+    for _ in range(3):
+        rig.step_period(2.0)
+    assert {n: len(f.signatures) for n, f in dispatchers.items()} == before

@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
+from . import kernels
 from .sos import SosFilter
 
 
@@ -20,15 +21,28 @@ class AmbientNoise:
         self.buf = np.empty((0, n))
         self.i = 0
 
+    @property
+    def due(self) -> bool:
+        """Whether the next period starts a new block (`draw`, filter, `fill`)."""
+        return self.i >= len(self.buf)
+
+    def draw(self, rng: np.random.Generator) -> np.ndarray:
+        """Draw the next block's machine and sensor noise; return the machine noise, for
+        `self.filter` and then `fill`."""
+        self.white = rng.standard_normal((2, self.block * self.n))
+        return self.white[0]                                         # a contiguous row
+
+    def fill(self, filtered: np.ndarray) -> None:
+        """Take the drawn block's machine noise, filtered, plus its sensor noise as the next periods'."""
+        kernels.scaled_sum(filtered, self.scale, self.white[1], self.sensor_pa, filtered)  # y scale + w sensor
+        self.buf = filtered.reshape(self.block, self.n)
+        self.white = None
+        self.i = 0
+
     def next(self, rng: np.random.Generator) -> np.ndarray:
         """Return the next period's ambient + sensor noise (n,) in Pa; generated in blocks of
         periods (LTI filter with carried state: identical to period-by-period filtering)."""
-        if self.i >= len(self.buf):
-            w = rng.standard_normal((2, self.block * self.n))
-            y = self.filter.filter_inplace(w[0].copy())
-            y *= self.scale
-            y += w[1] * self.sensor_pa
-            self.buf = y.reshape(self.block, self.n)
-            self.i = 0
+        if self.due:
+            self.fill(self.filter.filter_inplace(self.draw(rng)))
         self.i += 1
         return self.buf[self.i - 1]

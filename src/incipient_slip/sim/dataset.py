@@ -10,7 +10,6 @@ can write (a shared file system).
 """
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import os
@@ -20,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..cluster import as_done
+from . import kernels, mechanics
 from .protocols import run_collection
 from .rig import Rig, series_seed
 from .scene import Scene
@@ -60,12 +60,16 @@ def follows(view: Scene, source: Scene) -> bool:
     return tuple(view.materials) == tuple(source.materials)
 
 
-def _arrays(outs: list, period_s: float, material: str, seed: int) -> dict:
+def _arrays(outs: list, period_s: float, material: str, seed: int, drop=frozenset(), pac: list | None = None,
+            pzt_on: bool = True) -> dict:
+    """Return a series' arrays from its periods; for a view (`simulate_series`): `drop` the sensor
+    fields it does not have, its P_AC per period `pac` instead of the periods' (None entries: none)
+    and `pzt_on` False when it has no injection."""
     data: dict = {}
 
     def cat(name, dtype, empty_shape):
-        parts = [getattr(o, name) for o in outs]
-        if parts[0] is None:
+        parts = pac if name == "pac_counts" and pac is not None else [getattr(o, name) for o in outs]
+        if name in drop or parts[0] is None:
             return np.zeros(empty_shape, dtype)
         return np.concatenate(parts).astype(dtype, copy=False)
 
@@ -79,7 +83,7 @@ def _arrays(outs: list, period_s: float, material: str, seed: int) -> dict:
     for name in TRUTH:
         data[name] = np.array([getattr(o, name) for o in outs], dtype=bool if name == "gross_slip" else np.float64)
     data["material"] = np.array(material)
-    data["injection"] = np.array(bool(outs[0].pzt_on))
+    data["injection"] = np.array(bool(outs[0].pzt_on and pzt_on))
     data["seed"] = np.int64(seed)
     return data
 
@@ -102,11 +106,9 @@ def simulate_series(scene: Scene, material: str, seed: int, steps: int = 450, vi
         return data
     res = [data]
     for v, kind in zip(views, kinds):
-        drop = {f: None for effect, fields in SLOW if not v.has(effect) for f in fields}
-        vo = [dataclasses.replace(o, **drop, pac_counts=o.pac_counts if kind == "same" else p if kind == "without_pzt"
-                                  else None, pzt_on=o.pzt_on and v.has("injection"))
-              for o, p in zip(outs, off)]
-        res.append(_arrays(vo, rig.period_s, material, seed))
+        drop = {f for effect, fields in SLOW if not v.has(effect) for f in fields}
+        pac = None if kind == "same" else off if kind == "without_pzt" else [None]
+        res.append(_arrays(outs, rig.period_s, material, seed, drop, pac, v.has("injection")))
     return res
 
 
@@ -173,6 +175,8 @@ def write_dataset(scene: Scene, n_series: int, seed: int, out_dir: str | Path, *
             if bar:
                 bar.update()
     else:
+        mechanics.warm_up()          # load the compiled code once here: the forked workers inherit it
+        kernels.warm_up()
         with ProcessPoolExecutor(max_workers=workers) as pool:
             for _ in pool.map(_worker, jobs, chunksize=1):
                 if bar:

@@ -21,6 +21,8 @@ import math
 
 import numpy as np
 
+from . import kernels
+
 
 def play(x_in: float, target: float, half_width: float) -> float:
     """Return the new inner position of a play (backlash) operator: it moves only when the target is
@@ -32,15 +34,26 @@ def play(x_in: float, target: float, half_width: float) -> float:
     return x_in
 
 
-def electrode_counts_mean(p: dict, normal_force_kpa: float, a_mm: float, shift_mm: float) -> np.ndarray:
-    """Return the noise-free settled counts (19,) for F_N (kPa), contact radius a and inner-skin shift."""
-    pos = np.asarray(p["positions_mm"], float)
-    c = np.asarray(p["contact_center_mm"], float) + np.array([p["displacement_coupling"] * shift_mm, 0.0, 0.0])
-    r2 = np.sum((pos - c) ** 2, axis=1)
+def load_share(pos_mm: np.ndarray, center_mm: np.ndarray, p: dict, a_mm: float, shift_mm: float) -> np.ndarray:
+    """Return each electrode's share (19,) of the contact load, (w^2 / (w^2 + r_e^2))^(3/2), for the
+    electrode positions and contact centre (mm), contact radius a and inner-skin shift."""
     w2 = a_mm**2 + p["fluid_depth_mm"] ** 2
-    local_kpa = normal_force_kpa * (w2 / (w2 + r2)) ** 1.5
-    z_kohm = p["baseline_kohm"] * (1.0 + p["kpa_sensitivity"] * local_kpa)
-    return 4095.0 / (1.0 + z_kohm / 10.0)
+    share = np.empty(len(pos_mm))
+    kernels.electrode_ratio(pos_mm, center_mm, p["displacement_coupling"] * shift_mm, w2, share)
+    return np.power(share, 1.5, out=share)                 # numpy's power (kernels' docstring)
+
+
+def electrode_counts_mean(p: dict, normal_force_kpa: float, a_mm: float, shift_mm: float,
+                          pos_mm: np.ndarray | None = None, center_mm: np.ndarray | None = None,
+                          out: np.ndarray | None = None) -> np.ndarray:
+    """Return the noise-free settled counts (19,) for F_N (kPa), contact radius a and inner-skin shift
+    (into `out` when given; pos_mm and center_mm: p's positions as arrays, when the caller has them)."""
+    pos = np.asarray(p["positions_mm"], float) if pos_mm is None else pos_mm
+    center = np.asarray(p["contact_center_mm"], float) if center_mm is None else center_mm
+    out = np.empty(len(pos)) if out is None else out
+    kernels.electrode_counts(float(normal_force_kpa), load_share(pos, center, p, a_mm, shift_mm),
+                             float(p["baseline_kohm"]), float(p["kpa_sensitivity"]), out)
+    return out
 
 
 class Electrodes:
@@ -59,7 +72,11 @@ class Electrodes:
         tau = p["settling_time_s"]
         t = (np.arange(n) + 1) * (period_s / n)
         with np.errstate(over="ignore", under="ignore"):     # tau -> 0: no settling (weights 0)
-            self.settle_w = np.exp(-t / tau)[:, None] if tau > 0 else np.zeros((n, 1))
+            self.settle_w = np.exp(-t / tau) if tau > 0 else np.zeros(n)
+        self.pos = np.asarray(p["positions_mm"], float)
+        self.center = np.asarray(p["contact_center_mm"], float)
+        self.target = np.empty(len(self.pos))
+        self.baseline_kohm, self.kpa_sensitivity = float(p["baseline_kohm"]), float(p["kpa_sensitivity"])
 
     def inner_shift(self, pad_shear_mm: float, stiction_mm: float) -> float:
         """Return the inner skin's displacement after the pad sheared to pad_shear_mm (play operator)."""
@@ -67,8 +84,9 @@ class Electrodes:
         return self.inner_mm
 
     def __call__(self, rng: np.random.Generator, n: int, normal_force_kpa: float, a_mm: float,
-                 shift_mm: float) -> np.ndarray:
-        """Return (n, 19) counts (unquantized) for this period's contact."""
+                 shift_mm: float, out: np.ndarray | None = None) -> np.ndarray:
+        """Return (n, 19) counts (unquantized) for this period's contact (into `out` when given):
+        target + (settled - target) exp(-t / tau) per sample, plus offsets, drift and noise."""
         if n != self.n:
             raise ValueError(f"electrodes: built for {self.n} samples per period, asked for {n}")
         p = self.p
@@ -77,12 +95,12 @@ class Electrodes:
             self.buf_drift = rng.standard_normal((self.block, 19)) * innov
             self.buf_noise = rng.standard_normal((self.block, n, 19)) * p["noise_counts"]
             self.i = 0
-        self.drift = self.drift * self.drift_decay + self.buf_drift[self.i]
-        noise = self.buf_noise[self.i]
+        i = self.i
         self.i += 1
-        target = electrode_counts_mean(p, normal_force_kpa, a_mm, shift_mm)
         if self.settled is None:                                     # settling from the untouched pad
-            self.settled = electrode_counts_mean(p, 0.0, 0.0, 0.0)
-        mean = target + (self.settled - target) * self.settle_w      # first-order settling per sample
-        self.settled = mean[-1].copy()
-        return mean + self.offset + self.drift + noise
+            self.settled = electrode_counts_mean(p, 0.0, 0.0, 0.0, self.pos, self.center)
+        out = np.empty((n, 19)) if out is None else out
+        kernels.electrode_period(float(normal_force_kpa), load_share(self.pos, self.center, p, a_mm, shift_mm),
+                                 self.baseline_kohm, self.kpa_sensitivity, self.target, self.settled, self.settle_w,
+                                 self.offset, self.drift, self.drift_decay, self.buf_drift[i], self.buf_noise[i], out)
+        return out

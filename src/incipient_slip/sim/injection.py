@@ -35,11 +35,23 @@ class PztSource:
     def zi(self) -> np.ndarray:
         return self.filter.zi
 
+    @property
+    def due(self) -> bool:
+        """Whether the next period starts a new block (`draw`, filter, `fill`)."""
+        return self.i >= len(self.buf)
+
+    def draw(self, rng: np.random.Generator) -> np.ndarray:
+        """Return the next block's white noise, for `self.filter` and then `fill`."""
+        return rng.standard_normal(self.block * self.n)
+
+    def fill(self, filtered: np.ndarray) -> None:
+        """Take the drawn block, filtered, as the next periods' noise."""
+        self.buf = filtered.reshape(self.block, self.n)
+        self.i = 0
+
     def next(self, rng: np.random.Generator) -> np.ndarray:
         """Return the next period's band-limited unit noise (n,)."""
-        if self.i >= len(self.buf):
-            x = rng.standard_normal(self.block * self.n)
-            self.buf = self.filter.filter_inplace(x).reshape(self.block, self.n)
-            self.i = 0
+        if self.due:
+            self.fill(self.filter.filter_inplace(self.draw(rng)))
         self.i += 1
         return self.buf[self.i - 1]

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import adc, contact, mechanics, stick_slip
+from . import adc, contact, kernels, mechanics, stick_slip
 from .ambient_noise import AmbientNoise
 from .electrodes import Electrodes
 from .feasibility import material_mu
@@ -27,7 +27,7 @@ from .fingertip_modes import ModalPath
 from .injection import PztSource
 from .mocap import mocap_samples
 from .pdc import pdc_counts
-from .sos import SosFilter
+from .sos import SosFilter, filter_pair
 from .scene import Scene, load_scene  # noqa: F401  (re-exported)
 from .stick_slip import ContactState, SimulationError, raise_status
 from .temperature import temperature_counts
@@ -118,6 +118,7 @@ class Rig:
                   "mocap_noise_mm": p["mocap"]["noise_mm"] if "mocap" in p else 0.0}
         self.mech_params = np.array([float(values[name]) for name in mechanics.PARAMS])
         mechanics.warm_up()                              # once per process, not in the first period
+        kernels.warm_up()
         self.k_period = 0
         self.prev_sar = 1.0
         has = scene.has
@@ -136,6 +137,11 @@ class Rig:
                                    if pac_without_pzt and self.modes is not None else None)
         self.pac_without_pzt = pac_without_pzt
         self.last_pac_without_pzt: np.ndarray | None = None
+        # per-series constants of step_period (the effects it computes and the numbers it reads)
+        self.has_stick_slip, self.has_vibrotactile = has("stick_slip"), has("vibrotactile")
+        self.has_pdc, self.has_temperature, self.has_mocap = has("pdc"), has("temperature"), has("mocap")
+        self.pad_thickness_mm = p["fingertip_modes"]["pad_thickness_mm"] if "fingertip_modes" in p else None
+        self.mocap_tt = np.arange(self.n_mocap) / tm["mocap_rate_hz"] if self.has_mocap else None
 
     @property
     def friction_force_n(self) -> float | None:
@@ -161,89 +167,94 @@ class Rig:
             raise ValueError(f"step {k_step}: normal_force_kpa must be finite and >= 0, got {normal_force_kpa}")
         p = self.p
         st = self.state
+        rng = self.rng
         status, out_fn, in_contact, a_mm, k_bulk, sar, s_ratio, q, gross, slide_s = mechanics.period(
-            st.values, self.mech_params, fn_kpa, self.rng["friction"].standard_normal(), self.scene.has("stick_slip"))
+            st.values, self.mech_params, fn_kpa, rng["friction"].standard_normal(), self.has_stick_slip)
         if status:
             raise_status(status, k_step, self.friction_force_n if in_contact else 0.0,
                          self.mu_s, k_bulk, st.values)
         slide_t0 = st.slide_t0_s
         t0 = k_step * self.period_s
-        shear_strain = st.bulk_mm / p["fingertip_modes"]["pad_thickness_mm"] if "fingertip_modes" in p else 0.0
+        bulk_mm = st.bulk_mm
+        shear_strain = bulk_mm / self.pad_thickness_mm if self.pad_thickness_mm is not None else 0.0
         self.last_sar_seen: dict[str, float] = {}
 
         pac = None
         if self.has_pac:
             n = self.n_pac
-            x = np.zeros(n)
+            if self.band is not None and self.ambient is not None and self.band.due and self.ambient.due:
+                # both noises start a block: their filters run in one loop (sos.filter_pair)
+                x, y = self.band.draw(rng["injection"]), self.ambient.draw(rng["ambient"])
+                filter_pair(self.band.filter, x, self.ambient.filter, y)
+                self.band.fill(x)
+                self.ambient.fill(y)
+            # the PZT's band noise is drawn even when it is off (the streams stay aligned)
+            unit = self.band.next(rng["injection"]) if self.band is not None else None
+            gain = p["injection"]["pa_per_unit"] * 10.0 ** (self.pzt_db / 20.0) if self.pzt_on else 0.0
+            bursts = (bursts_pa(rng["vibrotactile"], n, self.fs, p["vibrotactile"], self.prev_sar - sar,
+                                slide_s, slide_t0, self.roughness, p["injection"]["pa_per_unit"])
+                      if self.has_vibrotactile else None)
+            x = np.empty(n)
+            kernels.pac_drive(unit if self.pzt_on else None, gain, bursts, x)
             # the PZT-absent twin (pac_without_pzt): the same sums in the same order, minus the PZT term
-            off = np.zeros(n) if self.pac_without_pzt else None
-            if self.band is not None:
-                unit = self.band.next(self.rng["injection"])       # drawn even when off: streams stay aligned
-                if self.pzt_on:
-                    x += unit * (p["injection"]["pa_per_unit"] * 10.0 ** (self.pzt_db / 20.0))
-            if self.scene.has("vibrotactile"):
-                bursts = bursts_pa(self.rng["vibrotactile"], n, self.fs, p["vibrotactile"], self.prev_sar - sar,
-                                   slide_s, slide_t0, self.roughness, p["injection"]["pa_per_unit"])
-                x += bursts
-                if off is not None:
-                    off += bursts
+            off = None
+            if self.pac_without_pzt:
+                off = np.empty(n)
+                kernels.pac_drive(None, 0.0, bursts, off)
             if self.modes is not None:
                 n_split = min(n, int(math.ceil((slide_t0 + slide_s) * self.fs))) if gross else 0
                 for part, s_part in ((slice(0, n_split), 0.0), (slice(n_split, n), sar)):
-                    if part.stop > part.start:
-                        self.modes(x[part], a_mm, s_part, shear_strain, self.material_damping)
-                        if off is not None:                # the same coefficients, the twin's own state
-                            self.filter_without_pzt.filter_inplace(off[part], self.modes.filter.sos)
+                    if part.stop > part.start:             # the twin: the same coefficients, its own state
+                        self.modes(x[part], a_mm, s_part, shear_strain, self.material_damping,
+                                   twin=None if off is None else (off[part], self.filter_without_pzt))
                 self.last_sar_seen["modes"] = self.modes.last_state[1]
-            if self.ambient is not None:
-                hum = self.ambient.next(self.rng["ambient"])
-                x += hum
-                if off is not None:
-                    off += hum
-            for buf in (x,) if off is None else (x, off):
-                if not np.all(np.isfinite(buf)):
-                    raise SimulationError(f"step {k_step}: non-finite P_AC (F_N={fn_kpa} kPa, s={s_ratio})")
-            pac = adc.pac_to_counts(x, p["adc"]["pac_pa_per_count"], p["adc"]["pac_range_pa"])
+            hum = self.ambient.next(rng["ambient"]) if self.ambient is not None else None
+            ad = p["adc"]
+            pac, finite = adc.pac_to_counts_finite(x, ad["pac_pa_per_count"], ad["pac_range_pa"], hum)
             if off is not None:
-                self.last_pac_without_pzt = adc.pac_to_counts(off, p["adc"]["pac_pa_per_count"],
-                                                              p["adc"]["pac_range_pa"])
+                self.last_pac_without_pzt, finite_off = adc.pac_to_counts_finite(off, ad["pac_pa_per_count"],
+                                                                                 ad["pac_range_pa"], hum)
+                finite = finite and finite_off
+            if not finite:
+                raise SimulationError(f"step {k_step}: non-finite P_AC (F_N={fn_kpa} kPa, s={s_ratio})")
         # slow channels share one 12-bit conversion: columns E1..E19, P_DC, T_AC, T_DC
         elec = pdc = tac = tdc = None
         if self.n_slow_cols:
             slow = np.zeros((self.n_slow, 22))
             if self.electrodes is not None:
-                ep = p["electrodes"]
-                stiction_mm = ep["core_stiction_ratio"] * out_fn / k_bulk
-                shift = self.electrodes.inner_shift(st.bulk_mm if in_contact else 0.0, stiction_mm)
-                slow[:, :19] = self.electrodes(self.rng["electrodes"], self.n_slow, fn_kpa if in_contact else 0.0,
-                                               a_mm, shift)
-            if self.scene.has("pdc"):
-                slow[:, 19] = pdc_counts(self.rng["pdc"], self.n_slow, fn_kpa, p["pdc"], p["adc"]["pdc_pa_per_count"])
-            if self.scene.has("temperature"):
-                slow[:, 20], slow[:, 21] = temperature_counts(self.rng["temperature"], self.n_slow, p["temperature"])
+                stiction_mm = p["electrodes"]["core_stiction_ratio"] * out_fn / k_bulk
+                shift = self.electrodes.inner_shift(bulk_mm if in_contact else 0.0, stiction_mm)
+                self.electrodes(rng["electrodes"], self.n_slow, fn_kpa if in_contact else 0.0, a_mm, shift,
+                                out=slow[:, :19])
+            if self.has_pdc:
+                pdc_counts(rng["pdc"], self.n_slow, fn_kpa, p["pdc"], p["adc"]["pdc_pa_per_count"], out=slow[:, 19])
+            if self.has_temperature:
+                temperature_counts(rng["temperature"], self.n_slow, p["temperature"], out=(slow[:, 20], slow[:, 21]))
             slow = adc.to_uint12(slow, int(p["adc"]["full_scale_counts"]))
             if self.electrodes is not None:
                 elec = slow[:, :19].copy()
-            if self.scene.has("pdc"):
+            if self.has_pdc:
                 pdc = slow[:, 19].copy()
-            if self.scene.has("temperature"):
+            if self.has_temperature:
                 tac, tdc = slow[:, 20].copy(), slow[:, 21].copy()
         mt = my = None
-        if self.scene.has("mocap"):
-            tt = np.arange(self.n_mocap) / p["timing"]["mocap_rate_hz"]
-            y_true = stick_slip.positions(st, self.k, tt)
-            mt = t0 + tt
-            my = mocap_samples(self.rng["mocap"], y_true, p["mocap"]["noise_mm"])
+        if self.has_mocap:
+            y_true = stick_slip.positions(st, self.k, self.mocap_tt)
+            mt = t0 + self.mocap_tt
+            my = mocap_samples(rng["mocap"], y_true, p["mocap"]["noise_mm"])
 
+        q = float(q)
+        y_mm = st.y_mm
+        for name, value in (("tangential_force_n", q), ("object_y_mm", y_mm), ("stick_area_ratio", sar),
+                            ("load_ratio_stick", s_ratio)):
+            if not math.isfinite(value):
+                raise SimulationError(f"step {k_step}: non-finite {name} = {value}")
         out = PeriodOutput(
             period_index=k_step, t_start_s=t0, pac_counts=pac, electrode_counts=elec, pdc_counts=pdc,
             tac_counts=tac, tdc_counts=tdc, mocap_t_s=mt, mocap_y_mm=my, normal_force_kpa=fn_kpa,
-            tangential_force_n=float(q), actuator_mm=st.actuator_mm, object_y_mm=st.y_mm,
+            tangential_force_n=q, actuator_mm=st.actuator_mm, object_y_mm=y_mm,
             stick_area_ratio=sar, load_ratio_stick=s_ratio, gross_slip=gross,
             pzt_on=self.pzt_on and self.band is not None, pzt_intensity_db=self.pzt_db)
-        for name in ("tangential_force_n", "object_y_mm", "stick_area_ratio", "load_ratio_stick"):
-            if not math.isfinite(getattr(out, name)):
-                raise SimulationError(f"step {k_step}: non-finite {name} = {getattr(out, name)}")
         self.prev_sar = sar
         self.k_period += 1
         if actuator_step:

@@ -27,6 +27,16 @@ def sosfilt_state(sos: np.ndarray, x: np.ndarray, zi: np.ndarray) -> tuple[np.nd
     return y.reshape(-1), z.reshape(-1, 2)
 
 
+def filter_pair(a: "SosFilter", x: np.ndarray, b: "SosFilter", y: np.ndarray) -> None:
+    """Filter x by a and y by b in place, each from its own state, in one compiled loop: the same
+    numbers as a.filter_inplace(x) and b.filter_inplace(y) (`kernels.sosfilt_pair`; tests), in
+    about the time of one of them (each recursion waits on its own previous sample)."""
+    if x.shape != y.shape:
+        raise ValueError(f"filter_pair: signals of one length, got {x.shape} and {y.shape}")
+    from . import kernels
+    kernels.sosfilt_pair(a.sos, x, a.z[0], b.sos, y, b.z[0])
+
+
 class SosFilter:
     """Sections with carried state for repeated calls; filters a float64 buffer in place."""
 

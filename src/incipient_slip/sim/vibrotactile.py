@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import kernels
+
 
 def bursts_pa(rng: np.random.Generator, n: int, fs_hz: float, p: dict, annulus_growth: float,
               slide_s: float, slide_start_s: float, roughness: float, pa_per_unit: float) -> np.ndarray:
@@ -13,9 +15,9 @@ def bursts_pa(rng: np.random.Generator, n: int, fs_hz: float, p: dict, annulus_g
     n_slide = rng.poisson(p["slide_bursts_per_s"] * slide_s) if slide_s > 0 else 0
     amp = p["burst_amplitude"] * roughness * pa_per_unit
     if n_micro:
-        np.add.at(x, rng.integers(0, n, n_micro), rng.standard_normal(n_micro) * amp)
+        kernels.add_at(x, rng.integers(0, n, n_micro), rng.standard_normal(n_micro) * amp)
     if n_slide:
         i0 = int(slide_start_s * fs_hz)
         i1 = max(i0 + 1, min(n, int((slide_start_s + slide_s) * fs_hz)))
-        np.add.at(x, rng.integers(i0, i1, n_slide), rng.standard_normal(n_slide) * amp)
+        kernels.add_at(x, rng.integers(i0, i1, n_slide), rng.standard_normal(n_slide) * amp)
     return x
