@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-load test-slow reproduce reproduce-quick bench bench-graph bench-cli bench-curve bench-bag bench-sim bench-grid bench-estimation bench-estimator bench-loop bench-loop-viewer bench-emulated-load clean
+.PHONY: demo test test-load test-slow reproduce reproduce-quick bench bench-graph bench-cli bench-curve bench-bag bench-sim bench-grid bench-estimation bench-estimator bench-loop bench-loop-viewer bench-bridge bench-emulated-load clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -101,6 +101,11 @@ bench-loop: $(STAMP)
 ROUNDS ?= 5
 bench-loop-viewer: $(STAMP)
 	$(BIN)/python bench/bench_loop_viewer.py --rounds $(ROUNDS) --variants stalled:idle
+
+# the viewer bridge's own CPU per lock-step period with a stalled client, in process; AGAINST=REV
+# also measures src/ at git revision REV, alternated (docs/performance.md, "Live view")
+bench-bridge: $(STAMP)
+	$(BIN)/python bench/bench_bridge.py $(if $(AGAINST),--against $(AGAINST))
 
 # the emulated launch (rig:=emulated steps:=20) EMU_RUNS times beside EMU_HOGS busy-loop CPU hogs
 # (stopped at the end): the pass count (docs/emulated.md, "Under load"; needs ur-rtde)
