@@ -98,9 +98,11 @@ bench-loop: $(STAMP)
 
 # bench-loop with and without the viewer bridge and a Foxglove client that never reads, alternated
 # ROUNDS times; prints the p99 ratio (docs/performance.md, "Live view")
+# (VARIANTS: more, e.g. "stalled:idle stalled@main": the package at git revision main)
 ROUNDS ?= 5
+VARIANTS ?= stalled:idle
 bench-loop-viewer: $(STAMP)
-	$(BIN)/python bench/bench_loop_viewer.py --rounds $(ROUNDS) --variants stalled:idle
+	$(BIN)/python bench/bench_loop_viewer.py --rounds $(ROUNDS) --variants $(VARIANTS)
 
 # the viewer bridge's own CPU per lock-step period with a stalled client, in process; AGAINST=REV
 # also measures src/ at git revision REV, alternated (docs/performance.md, "Live view")
