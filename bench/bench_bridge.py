@@ -10,7 +10,7 @@ to `LiveView.forward` as the bridge node does. CPU per period = this process's C
 thread: the SDK's server threads' queueing and sending too), waited for until it settles, over
 `--periods` periods, after 300 periods that fill the client's socket buffers (until then the
 server still sends; after, it queues and drops: the steady state of a stalled client); the
-client's CPU is not in it. The node's receive path (ZeroMQ, dispatch)
+XX
 is not either: `bench/bench_loop.py` prints the whole process's.
 
 `--against REV` also runs the same measurement on the project's `src/` at git revision REV,
@@ -32,36 +32,17 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-WANTED = ("/biotac/pac", "/biotac/pac/audio", "/actuator/state", "/pzt/state")
 FILL_PERIODS = 300
 
 
 def stalled_client(url: str) -> None:
-    """Child process: subscribes to WANTED on the bridge at `url`, says so, never reads again."""
-    from websockets.sync.client import connect
+    """Child process: bench_loop.py's stalled viewer on the bridge at `url` (subscribes to WANTED,
+    never reads again); says so, and stays until the bench ends (its stdin closes)."""
+    from bench_loop import stalled_viewer
 
-    def connected():
-        return connect(url, subprotocols=["foxglove.sdk.v1"], proxy=None, max_queue=1,
-                       open_timeout=30, close_timeout=1, compression=None)
-
-    def advertised(ws) -> dict[str, int]:
-        channels: dict[str, int] = {}
-        while not set(WANTED) <= set(channels):
-            frame = ws.recv(timeout=30)
-            if isinstance(frame, str) and json.loads(frame)["op"] == "advertise":
-                channels.update({c["topic"]: c["id"] for c in json.loads(frame)["channels"]})
-        return channels
-
-    # foxglove-sdk 0.30.3 may refuse a subscription to a channel added while the client was
-    # connecting (docs/tools.md): look with a first connection, subscribe with a second
-    with connected() as ws:
-        advertised(ws)
-    ws = connected().__enter__()
-    channels = advertised(ws)
-    ws.send(json.dumps({"op": "subscribe", "subscriptions": [
-        {"id": i, "channelId": channels[t]} for i, t in enumerate(WANTED)]}))
+    stalled_viewer(None, url)
     print("subscribed", flush=True)
-    sys.stdin.read()          # until the bench ends (its stdin closes)
+    sys.stdin.read()
 
 
 def period_bodies(n_periods: int) -> list[list[tuple[str, bytes]]]:
