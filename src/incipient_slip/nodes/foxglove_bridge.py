@@ -132,8 +132,6 @@ def lower_priority(priority: str) -> None:
                 os.sched_setscheduler(tid, os.SCHED_IDLE, os.sched_param(0))
             else:                           # low, or idle without SCHED_IDLE (not Linux): nice 10
                 os.setpriority(os.PRIO_PROCESS, tid, max(os.getpriority(os.PRIO_PROCESS, tid), 10))
-                if hasattr(os, "SCHED_BATCH"):  # and never preempts a node when it wakes
-                    os.sched_setscheduler(tid, os.SCHED_BATCH, os.sched_param(0))
         except OSError:                     # a thread that ended meanwhile
             pass
     if os.getsid(0) == os.getpid():
