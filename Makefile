@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-load test-slow reproduce reproduce-quick bench bench-graph bench-cli bench-curve bench-bag bench-sim bench-grid bench-estimation bench-estimator bench-loop bench-loop-viewer bench-emulated-load clean
+.PHONY: demo test test-load test-slow reproduce reproduce-quick bench bench-graph bench-cli bench-curve bench-bag bench-sim bench-grid bench-estimation bench-estimator bench-loop bench-loop-viewer bench-bridge bench-emulated-load clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -98,9 +98,16 @@ bench-loop: $(STAMP)
 
 # bench-loop with and without the viewer bridge and a Foxglove client that never reads, alternated
 # ROUNDS times; prints the p99 ratio (docs/performance.md, "Live view")
+# (VARIANTS: more, e.g. "stalled:idle stalled@main": the package at git revision main)
 ROUNDS ?= 5
+VARIANTS ?= stalled:idle
 bench-loop-viewer: $(STAMP)
-	$(BIN)/python bench/bench_loop_viewer.py --rounds $(ROUNDS) --variants stalled:idle
+	$(BIN)/python bench/bench_loop_viewer.py --rounds $(ROUNDS) --variants $(VARIANTS)
+
+# the viewer bridge's own CPU per lock-step period with a stalled client, in process; AGAINST=REV
+# also measures src/ at git revision REV, alternated (docs/performance.md, "Live view")
+bench-bridge: $(STAMP)
+	$(BIN)/python bench/bench_bridge.py $(if $(AGAINST),--against $(AGAINST))
 
 # the emulated launch (rig:=emulated steps:=20) EMU_RUNS times beside EMU_HOGS busy-loop CPU hogs
 # (stopped at the end): the pass count (docs/emulated.md, "Under load"; needs ur-rtde)

@@ -7,7 +7,8 @@ Each round runs every variant once, in turn (the order rotates each round so tha
 always follows the same one): `none` (no bridge), `stalled` (the bridge at its default priority
 and a Foxglove client that subscribes to every channel and never reads), and any of
 `--variants` (e.g. `stalled:idle`, the bridge at SCHED_IDLE; `attached`, the bridge and no
-client). Printed per variant: each run's p99 and median latency and the bridge's CPU per
+client; `stalled@main`, every process of the run on the package at git revision `main`, to
+compare a change in the same sitting). Printed per variant: each run's p99 and median latency and the bridge's CPU per
 period, the median of the p99s, and its ratio to `none` (issue goal: <= 1.1 for `stalled`).
 The machine's load average is printed beside: other users' jobs set the p99 on a shared
 machine, so only a sitting at low load (< 2 on 2 cores) says much about a 10 % goal.
@@ -17,8 +18,10 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import shutil
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -32,14 +35,41 @@ _NUMBERS = {
 }
 
 
-def run_variant(variant: str, periods: int) -> dict:
-    """One bench_loop.py run of `variant` ("none", "stalled", "attached", each ":PRIORITY")."""
+def parse_variant(variant: str) -> tuple[str, str, str]:
+    """(viewer, priority, rev) of "VIEWER[:PRIORITY][@REV]"; "" for what is not given."""
+    variant, _, rev = variant.partition("@")
     viewer, _, priority = variant.partition(":")
+    return viewer, priority, rev
+
+
+def source_tree(rev: str, directory: Path) -> Path:
+    """`directory`/REV, holding what a graph's nodes read at git revision `rev`: the package and
+    the launch files, scenes and models it finds beside it (paths.repo_root)."""
+    root = directory / rev.replace("/", "_")
+    if not root.exists():
+        root.mkdir(parents=True)
+        archive = subprocess.run(["git", "-C", str(BENCH_LOOP.parent.parent), "archive", rev,
+                                  "src", "launch", "scenes", "models"], check=True,
+                                 capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(root)], input=archive, check=True)
+        found = subprocess.run([sys.executable, "-c", "import incipient_slip; print(incipient_slip.__file__)"],
+                               env=dict(os.environ, PYTHONPATH=str(root / "src")), check=True,
+                               capture_output=True, text=True).stdout.strip()
+        if not Path(found).is_relative_to(root):
+            raise SystemExit(f"bench-loop-viewer: PYTHONPATH={root / 'src'} imports {found}")
+    return root
+
+
+def run_variant(variant: str, periods: int, trees: Path) -> dict:
+    """One bench_loop.py run of `variant` ("none", "stalled", "attached", each ":PRIORITY", each
+    "@REV": the package at git revision REV for every process of the run, the bench's own too)."""
+    viewer, priority, rev = parse_variant(variant)
     cmd = [sys.executable, str(BENCH_LOOP), "--periods", str(periods), "--viewer", viewer]
     if priority:
         cmd += ["--viewer-priority", priority]
+    env = dict(os.environ, PYTHONPATH=str(source_tree(rev, trees) / "src")) if rev else None
     load = os.getloadavg()[0]
-    out = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=900, env=env)
     if out.returncode != 0:
         raise SystemExit(f"bench-loop-viewer: {variant} failed ({out.returncode}):\n{out.stderr[-2000:]}")
     got = {"load": load}
@@ -60,18 +90,22 @@ def main(argv=None) -> int:
         ap.error("--rounds and --periods must be >= 1")
     variants = ["none", "stalled", *[v for v in args.variants if v not in ("none", "stalled")]]
     for v in variants:
-        viewer, _, priority = v.partition(":")
+        viewer, priority, _ = parse_variant(v)
         if viewer not in ("none", "stalled", "attached") or priority not in ("", "idle", "low", "normal"):
-            ap.error(f"unknown variant {v!r}: VIEWER[:PRIORITY], VIEWER none|stalled|attached, "
-                     "PRIORITY idle|low|normal")
+            ap.error(f"unknown variant {v!r}: VIEWER[:PRIORITY][@REV], VIEWER none|stalled|attached, "
+                     "PRIORITY idle|low|normal, REV a git revision")
     runs: dict[str, list[dict]] = {v: [] for v in variants}
-    for r in range(args.rounds):
-        order = variants[r % len(variants):] + variants[:r % len(variants)]
-        for v in order:
-            runs[v].append(run_variant(v, args.periods))
-            last = runs[v][-1]
-            print(f"  round {r + 1}/{args.rounds} {v:16s} p99 {last['p99']:7.3f} ms  median "
-                  f"{last['median']:.3f} ms  load {last['load']:.1f}", flush=True)
+    trees = Path(tempfile.mkdtemp(prefix="bench-loop-viewer-"))
+    try:
+        for r in range(args.rounds):
+            order = variants[r % len(variants):] + variants[:r % len(variants)]
+            for v in order:
+                runs[v].append(run_variant(v, args.periods, trees))
+                last = runs[v][-1]
+                print(f"  round {r + 1}/{args.rounds} {v:16s} p99 {last['p99']:7.3f} ms  median "
+                      f"{last['median']:.3f} ms  load {last['load']:.1f}", flush=True)
+    finally:
+        shutil.rmtree(trees, ignore_errors=True)
     base = float(np.median([x["p99"] for x in runs["none"]]))
     loads = [x["load"] for rs in runs.values() for x in rs]
     print(f"\n{args.rounds} alternated rounds of {args.periods} lock-step periods, load average "

@@ -15,7 +15,8 @@ from incipient_slip.graph.bag import BagWriter, read_bag
 from scipy.signal import upfirdn
 
 from incipient_slip.graph.bag_export import (JS_SAFE_INT, PAC_RATE_HZ, RAW_AUDIO_SCHEMA, AudioUpsampler,
-                                             export_foxglove, export_schema, to_export_json)
+                                             _Counter, _json_value, _plain_array, export_foxglove,
+                                             export_schema, to_export_json)
 from incipient_slip.messages import MESSAGE_TYPES, BiotacPac, Heartbeat, SlipEstimate
 
 DEMO = Path(__file__).resolve().parents[1] / "data" / "demo.mcap"
@@ -128,3 +129,25 @@ def test_upsampler_frame_by_frame_equals_upfirdn_of_the_whole_stream():
     by_frame = np.concatenate([framed(f) for f in stream.reshape(30, 22)])
     whole = upfirdn(framed.taps, stream.astype(float), up=4)[:by_frame.size]
     assert np.array_equal(by_frame, np.clip(np.rint(whole), -32768, 32767).astype(np.int16))
+
+
+@pytest.mark.parametrize("name", sorted(n for n, t in MESSAGE_TYPES.items()
+                                        if any("array" in s for s in t.schema()["fields"].values())))
+def test_export_json_of_arrays_equals_the_element_by_element_rule(name):
+    """Arrays whose every element is its own JSON value go as one list (the live view's hot
+    path): the same JSON as checking each element, at the dtype's extremes too."""
+    msg_type = MESSAGE_TYPES[name]
+    rng = np.random.default_rng(0)
+    arrays = {}
+    for f, spec in msg_type.schema()["fields"].items():
+        if "array" in spec:
+            dtype = np.dtype(spec["array"])
+            info = np.iinfo(dtype) if dtype.kind in "iu" else np.finfo(dtype)
+            values = rng.uniform(-1e6, 1e6, spec["shape"]).astype(dtype)
+            values.flat[0], values.flat[-1] = info.min, info.max
+            arrays[f] = values
+    msg = msg_type(**arrays, stamp_ns=EPOCH_NS, seq=1)
+    seen = _Counter()
+    expected = {**to_export_json(msg), **{f: _json_value(a.tolist(), seen) for f, a in arrays.items()}}
+    assert json.dumps(to_export_json(msg)) == json.dumps(expected)
+    assert not _plain_array(np.array([JS_SAFE_INT + 1], dtype="<i8"))       # would need a digit string

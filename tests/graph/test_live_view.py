@@ -4,6 +4,7 @@ written from the protocol's specification (no foxglove code)."""
 from __future__ import annotations
 
 import base64
+import dataclasses
 import json
 import os
 import subprocess
@@ -16,9 +17,9 @@ pytest.importorskip("foxglove", reason="the [view] extra (foxglove-sdk) is not i
 from jsonschema import Draft202012Validator  # noqa: E402
 
 from foxglove_client import FoxgloveClient  # noqa: E402
-from incipient_slip.graph.bag_export import RAW_AUDIO_SCHEMA, to_export_json  # noqa: E402
-from incipient_slip.graph.live_view import LiveView, is_loopback  # noqa: E402
-from incipient_slip.messages import BiotacPac, SlipEstimate, encode  # noqa: E402
+from incipient_slip.graph.bag_export import RAW_AUDIO_SCHEMA, raw_audio_block, to_export_json  # noqa: E402
+from incipient_slip.graph.live_view import LiveView, _json, is_loopback  # noqa: E402
+from incipient_slip.messages import MESSAGE_TYPES, BiotacPac, SlipEstimate, encode  # noqa: E402
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -330,3 +331,22 @@ def test_the_bridge_lowers_threads_started_before_it_zeromqs_io_thread_included(
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
     expected = [(os.SCHED_IDLE, 0)] if priority == "idle" else [(os.SCHED_OTHER, 10)]
     assert out.stdout.strip() == str(expected), out.stderr
+
+
+@pytest.mark.parametrize("name", sorted(MESSAGE_TYPES))
+def test_the_live_json_bytes_parse_to_the_export_json_of_every_message_type(name):
+    """The channels' bytes (msgspec's encoder) parse to what json.dumps of the export JSON
+    parses to: wall-clock stamps as digit strings, NaN as null, non-ASCII text."""
+    msg_type = MESSAGE_TYPES[name]
+    fields = msg_type.schema()["fields"]
+    arrays = {f: np.zeros(spec["shape"], dtype=spec["array"]) for f, spec in fields.items() if "array" in spec}
+    msg = msg_type(**arrays, stamp_ns=1_763_900_000_123_456_789, seq=2**64 - 1)
+    overrides = {f: "grip ü €" for f, spec in fields.items()
+                 if spec.get("type") == "str" and "choices" not in spec and "enum" not in spec}
+    overrides.update({f: float("nan") for f, spec in fields.items() if spec.get("type") == "float" and spec.get("nan")})
+    if overrides:
+        msg = dataclasses.replace(msg, **overrides)
+    obj = to_export_json(msg)
+    assert json.loads(_json(obj)) == json.loads(json.dumps(obj, allow_nan=False))
+    assert json.loads(_json(raw_audio_block(np.arange(44, dtype=np.int16), 10**18))) == \
+        json.loads(json.dumps(raw_audio_block(np.arange(44, dtype=np.int16), 10**18)))

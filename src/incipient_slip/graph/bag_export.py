@@ -147,13 +147,25 @@ def _field_names(msg_type: type[Message]) -> tuple[str, ...]:
     return names
 
 
+def _plain_array(value: np.ndarray) -> bool:
+    """Whether every element of `value` is its own JSON value (no digit string, no null)."""
+    kind = value.dtype.kind
+    return (kind == "b" or (kind in "iu" and value.dtype.itemsize <= 4)
+            or (kind == "f" and bool(np.isfinite(value).all())))
+
+
 def to_export_json(msg: Message, seen: _Counter | None = None) -> dict:
     """The exported JSON object of `msg` (see the module doc for the rules)."""
     seen = seen if seen is not None else _Counter()
     out = {"type": type(msg).__name__, "v": type(msg).SCHEMA_VERSION}
     for name in _field_names(type(msg)):
         value = getattr(msg, name)
-        out[name] = _json_value(value.tolist() if isinstance(value, np.ndarray) else value, seen)
+        if isinstance(value, np.ndarray):
+            # lists of ints that fit a JavaScript number, or of finite floats, go as they are
+            out[name] = (value.tolist() if _plain_array(value)
+                         else _json_value(value.tolist(), seen))
+        else:
+            out[name] = _json_value(value, seen)
     out["stamp"] = _time(msg.stamp_ns)
     return out
 
@@ -179,13 +191,16 @@ class AudioUpsampler:
 
     def __call__(self, counts: np.ndarray) -> np.ndarray:
         """The frame `counts` at `factor` times the rate, as int16 (clipped)."""
-        x = np.concatenate([self._history, counts.astype(float)])
+        x = np.concatenate((self._history, counts), dtype=float)
         if self._history.size:
             self._history = x[-self._history.size:]
-        # windows[n, k] = x[n - k] for the frame's n (newest first)
-        windows = np.lib.stride_tricks.sliding_window_view(x, self._phases.shape[0])[:, ::-1]
-        out = windows @ self._phases
-        return np.clip(np.rint(out.ravel()), -32768, 32767).astype(np.int16)
+        # windows[n, k] = x[n - k] for the frame's n (newest first): a view of x (as
+        # sliding_window_view(x, K)[:, ::-1], built directly: that costs ten times the product)
+        k, step = self._phases.shape[0], x.strides[0]
+        windows = np.ndarray((x.size - k + 1, k), float, buffer=x, offset=(k - 1) * step,
+                             strides=(step, -step))
+        out = (windows @ self._phases).ravel()
+        return np.clip(np.rint(out, out=out), -32768, 32767, out=out).astype(np.int16)
 
 
 def raw_audio(msg: BiotacPac, upsample: AudioUpsampler | None = None) -> dict:

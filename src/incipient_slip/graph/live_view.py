@@ -30,6 +30,7 @@ import ipaddress
 import json
 import threading
 
+import msgspec
 import numpy as np
 
 from incipient_slip.graph.bag_export import (
@@ -103,16 +104,21 @@ class LiveView:
         """Logs the msgpack `body` heard on `topic` to its channel(s); False when no client
         subscribes (the body is then not decoded). MessageError for a malformed body."""
         channel = self.channels.get(topic)
-        audio = self._audio.get(topic)
-        if channel is not None and not channel.has_sinks() and not (audio and audio.channel.has_sinks()):
-            return False
-        msg = decode_any(body, topic)
-        if channel is None:
+        if channel is None:                     # first heard: the body tells the type
+            msg = decode_any(body, topic)
             channel = self._open(topic, type(msg))
-            audio = self._audio.get(topic)
-        if channel.has_sinks() and (not isinstance(msg, BiotacPac) or self._shows_frame(topic, msg.stamp_ns)):
-            channel.log(json.dumps(to_export_json(msg), allow_nan=False).encode(), log_time=msg.stamp_ns)
-        if audio is not None:
+        else:
+            msg = None
+        audio = self._audio.get(topic)
+        to_json = channel.has_sinks()
+        to_audio = audio is not None and audio.listened()
+        if not (to_json or to_audio):
+            return msg is not None
+        if msg is None:
+            msg = decode_any(body, topic)
+        if to_json and (not isinstance(msg, BiotacPac) or self._shows_frame(topic, msg.stamp_ns)):
+            channel.log(_json(to_export_json(msg)), log_time=msg.stamp_ns)
+        if to_audio:
             audio.add(msg)
         return True
 
@@ -156,10 +162,16 @@ class _AudioBlocks:
         self.pending: list[np.ndarray] = []
         self.last_ns = 0
 
+    def listened(self) -> bool:
+        """Whether a client subscribes to the audio channel now; if not, the frames pending
+        are let go (a block holds what a client hears)."""
+        if self.channel.has_sinks():
+            return True
+        self.pending = []
+        return False
+
     def add(self, msg: BiotacPac) -> None:
-        if not self.channel.has_sinks():
-            self.pending = []
-            return
+        """Appends a frame a client hears (`listened()` just said so)."""
         if self.pending and not 0 < msg.stamp_ns - self.last_ns < 1.5 * _FRAME_NS:
             self.flush()
         self.pending.append(msg.pac_counts)
@@ -170,8 +182,17 @@ class _AudioBlocks:
     def flush(self) -> None:
         if self.pending:
             block = raw_audio_block(np.concatenate(self.pending), self.last_ns, self.upsample)
-            self.channel.log(json.dumps(block).encode(), log_time=self.last_ns)
+            self.channel.log(_json(block), log_time=self.last_ns)
             self.pending = []
+
+
+def _json(obj: dict) -> bytes:
+    """`obj` (a JSON value already: export JSON, no NaN) as compact JSON bytes; msgspec writes
+    what json.dumps would parse back to, at a fifth of its time."""
+    return _JSON_ENCODE(obj)
+
+
+_JSON_ENCODE = msgspec.json.Encoder().encode
 
 
 def _listener(subscribed: threading.Event):
