@@ -402,7 +402,7 @@ def recommendation(result: dict, scale: dict) -> str:
         text += (f"On all {scale['n_train_windows']} windows Nystroem {ny['n_components']} + ridge "
                  f"(RMSE {ny['rmse']:.3f}, fit {ny['fit_s']:.0f} s) is within 5 % of the best exact SVR "
                  f"(RMSE {be['rmse']:.3f} on {be['n']} windows), whose fit on all windows would take "
-                 f"~{scale['predicted_exact_full_s'] / 60:.0f} min: train with Nystroem + ridge at that scale.")
+                 f"at least ~{scale['predicted_exact_full_s'] / 60:.0f} min (extrapolated): train with Nystroem + ridge at that scale.")
     else:
         text += (f"Nystroem + ridge on all windows (best RMSE {ny['rmse']:.3f}) is more than 5 % worse than "
                  f"the best exact SVR (RMSE {be['rmse']:.3f} on {be['n']} windows): keep the exact SVR.")
