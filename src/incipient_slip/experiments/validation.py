@@ -28,6 +28,7 @@ from incipient_slip import control
 from incipient_slip.cluster import check_scheduler, open_client
 
 from . import calibration as cal
+from .timing import duration
 
 NAME = "validation"
 HELP = "the held-out stabilization Table over the simulated rig's uncertainty set (dask)"
@@ -662,14 +663,14 @@ def task_times(pts: dict, cores: int = 16) -> str:
     tables = [p["seconds"] for p in pts.values() if p.get("table") and p.get("seconds")]
     if not refits and not tables:
         return "(no per-task times recorded)"
-    span = lambda v: f"{min(v):.0f}–{max(v):.0f} s (sum {sum(v) / 60:.1f} min)" if v else "–"  # noqa: E731
+    span = lambda v: f"{min(v):.0f}–{max(v):.0f} s (sum {duration(sum(v))})" if v else "–"  # noqa: E731
     longest = max(refits or [0.0]) + max(tables or [0.0])
     return (f"Per-task times (simulated rig; one single-threaded dask worker per task, on the shared 2-core "
             f"machine): refits {span(refits)} for {len(refits)} of {len(pts)} points"
             + ("" if len(refits) == len(pts) else " (the others' refit time was not recorded by that run)")
             + f"; Tables {span(tables)} for {len(tables)} points. On 2 workers the recorded tasks take at least "
-            f"{(sum(refits) + sum(tables)) / 2 / 60:.0f} min; on a {cores}-core cluster every point runs at once "
-            f"and the longest refit plus the longest Table, {longest / 60:.0f} min, bounds the set "
+            f"{duration((sum(refits) + sum(tables)) / 2)}; on a {cores}-core cluster every point runs at once "
+            f"and the longest refit plus the longest Table, {duration(longest)}, bounds the set "
             "(a refit is one Nelder-Mead fit, sequential; `--scheduler tcp://HOST:PORT` uses such a cluster).")
 
 
@@ -679,7 +680,8 @@ def _render_joint(results: dict, head: str, methods: list) -> str:
     pts = joint["points"]
     ok = {n: p for n, p in pts.items() if p.get("table")}
     if "runs" in joint:
-        head = (f"Simulated rig, not measurements: {joint['runs']} runs per method (fewer than the paper's 10, for time), "
+        fewer = " (fewer than the paper's 10, for time)" if joint["runs"] < 10 else ""
+        head = (f"Simulated rig, not measurements: {joint['runs']} runs per method{fewer}, "
                 f"{results['steps']} steps, models trained on {joint['series']} simulated series per data set (quick SVR).")
     lines = [head, "", f"{len(pts)} points, {len(ok)} consistent with T1-T4', T7 after their own refit.", "",
              "| point | T1 onset [mm] | T2 spread [mm] | T3 slips | T4' no-action y [mm] (slid) | T7 range [mm] | consistent |",
