@@ -45,6 +45,13 @@ class Controller(Node):
         deadline = time.monotonic() + timeout_s
         while not predicate():
             if proc is not None and proc.poll() is not None:
+                # a rig that ended (exit_when_done) may have sent its last messages just before:
+                # they are ours to read, so the predicate gets them before the exit counts
+                quiet_until = time.monotonic() + 2.0
+                while not predicate() and time.monotonic() < quiet_until:
+                    self.spin_once(0.02)
+                if predicate():
+                    return
                 raise AssertionError(f"rig_sim exited {proc.returncode}: {proc.stderr.read().decode()}")
             assert time.monotonic() < deadline, "timed out"
             self.spin_once(0.02)
