@@ -139,7 +139,7 @@ class Probe:
         deadline = time.monotonic() + timeout_s
         while not predicate():
             for proc in procs:
-                if proc.poll() is not None and not predicate():
+                if proc.poll() is not None and not self._read_what_is_left(predicate, nodes):
                     err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
                     pytest.fail(f"waiting for {what or predicate}: {proc.args[:4]} exited "
                                 f"with {proc.returncode}:\n{err[-3000:]}")
@@ -148,6 +148,16 @@ class Probe:
             self.node.spin_once(0 if nodes else 0.01)   # one message (or timer) per call
             for node in nodes:
                 node.spin_once(0.01 / len(nodes))
+
+    def _read_what_is_left(self, predicate: Callable[[], bool], nodes=(), quiet_s: float = 2.0) -> bool:
+        """A process that ended may have sent its last messages just before: spins up to
+        `quiet_s` for them, so an exit counts only when the predicate still fails after."""
+        until = time.monotonic() + quiet_s
+        while not predicate() and time.monotonic() < until:
+            self.node.spin_once(0.01)
+            for node in nodes:
+                node.spin_once(0.01 / len(nodes))
+        return predicate()
 
     def close(self) -> None:
         self.node.close()

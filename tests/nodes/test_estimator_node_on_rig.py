@@ -43,7 +43,12 @@ class AnsweringController(Node):
         deadline = time.monotonic() + timeout_s
         while not predicate():
             for p in procs:
-                assert p.poll() is None, p.stderr.read().decode()
+                if p.poll() is not None:          # its last messages may still be queued for us
+                    quiet_until = time.monotonic() + 2.0
+                    while not predicate() and time.monotonic() < quiet_until:
+                        self.spin_once(0.02)
+                    assert predicate(), p.stderr.read().decode()
+                    return
             assert time.monotonic() < deadline, "timed out"
             self.spin_once(0.02)
 
