@@ -122,7 +122,7 @@ def fit_point(sweep, label, train, test, kind, params, max_train, n_components=1
 class Fits:
     """The study's fits, each done once: the paper's setting (T = 1 s, 10 Hz bins, exact SVR on
     4000 windows) is a point of every sweep, the size sweep's exact SVRs are the scale study's
-    smaller ones, and Nystroem 1000 is in the model sweep and the scale study. A setting met again
+    smaller ones, and Nystroem 300 and 1000 are in the model sweep and the scale study. A setting met again
     is the same fit (same data, parameters and seed), so it is reported with its one measurement
     under the new sweep and label instead of being fitted and timed again."""
 
@@ -230,8 +230,8 @@ def scale_study(train: WindowSet, test: WindowSet, params: dict, fits: Fits | No
         slope, predicted_full_s = 2.0, float(tt[-1] * (n_all / nn[-1]) ** 2)
     ny = []
     # 300 and 1000 are the model sweep's fits (`fits`); past 1000 landmarks the RMSE moves by
-    # < 0.001 while the fit grows as landmarks^2 (3000: 91 s, RMSE within 0.0001 of 2000, measured
-    # 2026-11-26 and shown in docs/accuracy-vs-time.md), so the study stops at 2000
+    # < 0.001 while the fit grows as landmarks^2 (3000: 91 s, RMSE within 0.0001 of 2000, in the run
+    # of 2026-11-25 quoted in docs/accuracy-vs-time.md), so the study stops at 2000
     for nc in ([300, 1000] if quick else [300, 1000, 2000]):
         p = fits.point("scale", f"Nystroem {nc} + ridge, all windows", train, test, "nystroem", params,
                       None, n_components=nc)
