@@ -24,6 +24,8 @@ from typing import Callable, Iterable
 
 import pytest
 
+from waiting import spin_until
+
 GRAPH_TIMEOUT_S = 300      # a hang guard that holds on a loaded machine (make test-load)
 
 
@@ -135,29 +137,12 @@ class Probe:
     def until(self, predicate: Callable[[], bool], timeout_s: float = 30.0, *, procs=(),
               nodes=(), what: str = "") -> None:
         """Spins the probe (and `nodes`) until `predicate()`; fails on timeout or when one of
-        `procs` exits first."""
-        deadline = time.monotonic() + timeout_s
-        while not predicate():
-            for proc in procs:
-                if proc.poll() is not None and not self._read_what_is_left(predicate, nodes):
-                    err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
-                    pytest.fail(f"waiting for {what or predicate}: {proc.args[:4]} exited "
-                                f"with {proc.returncode}:\n{err[-3000:]}")
-            if time.monotonic() > deadline:
-                pytest.fail(f"waiting for {what or predicate}: not within {timeout_s} s")
+        `procs` exited and what it sent before does not make `predicate()` true (waiting.py)."""
+        def spin():
             self.node.spin_once(0 if nodes else 0.01)   # one message (or timer) per call
             for node in nodes:
                 node.spin_once(0.01 / len(nodes))
-
-    def _read_what_is_left(self, predicate: Callable[[], bool], nodes=(), quiet_s: float = 2.0) -> bool:
-        """A process that ended may have sent its last messages just before: spins up to
-        `quiet_s` for them, so an exit counts only when the predicate still fails after."""
-        until = time.monotonic() + quiet_s
-        while not predicate() and time.monotonic() < until:
-            self.node.spin_once(0.01)
-            for node in nodes:
-                node.spin_once(0.01 / len(nodes))
-        return predicate()
+        spin_until(spin, predicate, timeout_s, procs, what)
 
     def close(self) -> None:
         self.node.close()

@@ -4,7 +4,6 @@ the model applied offline to the same window of the in-process simulation (the s
 node path and the sample indices of the data set path cut the same windows)."""
 from __future__ import annotations
 
-import time
 
 import numpy as np
 import pytest
@@ -14,6 +13,7 @@ from incipient_slip.models.features import feature_spec, phi
 from incipient_slip.models.modelfile import Model, save_model
 from incipient_slip.graph.runtime import Node
 from incipient_slip.sim.rig import Rig, load_scene
+from waiting import spin_until
 
 
 class AnsweringController(Node):
@@ -40,17 +40,7 @@ class AnsweringController(Node):
         self.grip.publish(GripCommand(normal_force_kpa=self.forces[msg.period + 1], period=msg.period))
 
     def spin_until(self, predicate, procs, timeout_s=30.0):
-        deadline = time.monotonic() + timeout_s
-        while not predicate():
-            for p in procs:
-                if p.poll() is not None:          # its last messages may still be queued for us
-                    quiet_until = time.monotonic() + 2.0
-                    while not predicate() and time.monotonic() < quiet_until:
-                        self.spin_once(0.02)
-                    assert predicate(), p.stderr.read().decode()
-                    return
-            assert time.monotonic() < deadline, "timed out"
-            self.spin_once(0.02)
+        spin_until(lambda: self.spin_once(0.02), predicate, timeout_s, procs)
 
 
 @pytest.mark.timeout(60)

@@ -16,6 +16,7 @@ from incipient_slip.nodes.rig_sim import RigSim, pac_frame_stamps_ns, slow_frame
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.sim.dataset import simulate_series
 from incipient_slip.sim.rig import Rig, load_scene
+from waiting import spin_until
 
 RECORDED = (BiotacPac, BiotacSlow, ObjectPose, RobotState, ActuatorState, PztState, SimTruth)
 
@@ -42,19 +43,7 @@ class Controller(Node):
         return len(self.got[ActuatorState])
 
     def spin_until(self, predicate, timeout_s=20.0, proc=None):
-        deadline = time.monotonic() + timeout_s
-        while not predicate():
-            if proc is not None and proc.poll() is not None:
-                # a rig that ended (exit_when_done) may have sent its last messages just before:
-                # they are ours to read, so the predicate gets them before the exit counts
-                quiet_until = time.monotonic() + 2.0
-                while not predicate() and time.monotonic() < quiet_until:
-                    self.spin_once(0.02)
-                if predicate():
-                    return
-                raise AssertionError(f"rig_sim exited {proc.returncode}: {proc.stderr.read().decode()}")
-            assert time.monotonic() < deadline, "timed out"
-            self.spin_once(0.02)
+        spin_until(lambda: self.spin_once(0.02), predicate, timeout_s, [proc] if proc else (), "rig_sim")
 
 
 def start_rig(graph, **params):
