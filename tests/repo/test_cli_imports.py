@@ -93,3 +93,22 @@ def test_help_and_unknown_words_still_list_every_command(capsys):
             assert word in out
     assert cli.modules_for(["nonsense"]) == cli.COMMAND_MODULES
     assert cli.modules_for(["topic", "list"]) == ("incipient_slip.graph.tools:register_topic",)
+
+
+def _parsers(parser, words=("slip",)):
+    """Every parser of the `slip` tree with its command words."""
+    yield words, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for word, child in action.choices.items():
+                yield from _parsers(child, (*words, word))
+
+
+def test_every_help_of_the_slip_tree_renders():
+    """argparse %-formats help texts: a bare '%' in one ('top-10 % RMSE') made `slip reproduce
+    --help` a traceback. Every command's help, and every help line it lists, must render."""
+    seen = []
+    for words, parser in _parsers(cli.build_parser()):
+        assert parser.format_help(), words
+        seen.append(" ".join(words))
+    assert {"slip reproduce", "slip reproduce estimation", "slip bag export", "slip topic pub"} <= set(seen)

@@ -61,12 +61,21 @@ def register(subparsers) -> None:
     sub = p.add_subparsers(dest="experiment", metavar="EXPERIMENT")
     for name in EXPERIMENTS:
         module = load(name)
-        e = sub.add_parser(name, help=module.HELP, description=module.__doc__.split("\n\n")[0]
+        # argparse %-formats help texts: a HELP may say "10 %"
+        e = sub.add_parser(name, help=module.HELP.replace("%", "%%"), description=module.__doc__.split("\n\n")[0]
                            + f" Writes docs/{module.DOC}.")
         add_common_arguments(e)
         module.add_arguments(e)
     from .reproduce_all import add_all_parser
-    add_all_parser(sub)
+    add_all_parser(sub, _run_one)
+
+
+def _run_one(argv: list[str], log: Path) -> int:
+    """`slip reproduce ARGV` in this process, its output going to `log` (for reproduce all)."""
+    from .reproduce_all import run_logged
+    parser = argparse.ArgumentParser(prog="slip")
+    register(parser.add_subparsers(dest="command", required=True))
+    return run_logged(parser, cmd_reproduce, argv, log)
 
 
 def settings_from_args(args: argparse.Namespace, module) -> Settings:

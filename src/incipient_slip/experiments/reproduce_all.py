@@ -32,8 +32,9 @@ from .timing import duration, load_times, record_time, time_block
 ORDER = ("calibration", "models", "estimation", "accuracy-vs-time", "stabilization", "diagnosis", "validation")
 
 
-def add_all_parser(sub) -> None:
-    """Add `slip reproduce all`."""
+def add_all_parser(sub, run_one) -> None:
+    """Add `slip reproduce all`; `run_one(argv, log)` runs one `slip reproduce NAME ...` in this
+    process with its output to `log` and returns its exit code (experiments.cli's)."""
     p = sub.add_parser("all", help="every experiment in dependency order, one progress display, a final table",
                        description=__doc__.split("\n\n")[0])
     budget = p.add_mutually_exclusive_group()
@@ -41,7 +42,7 @@ def add_all_parser(sub) -> None:
                         help="every experiment's quick preview (WORK only; records the quick times)")
     budget.add_argument("--full", dest="budget", action="store_const", const="full",
                         help="the full budget behind docs/ (default)")
-    p.set_defaults(budget="full", func=cmd_all)
+    p.set_defaults(budget="full", func=cmd_all, run_one=run_one)
     p.add_argument("--only", nargs="+", choices=ORDER, metavar="NAME",
                    help=f"run only these (in the order {', '.join(ORDER)})")
     p.add_argument("--joint", action="store_true", help="validation also runs the joint uncertainty set")
@@ -70,7 +71,6 @@ def plan(only=None) -> list[str]:
 
 def cmd_all(args) -> int:
     """Run the plan; print one line per experiment and the final table; return 0 if all succeeded."""
-    from .cli import cmd_reproduce
     if args.jobs < 1:
         raise UsageError(f"--jobs must be >= 1, got {args.jobs}")
     docs = args.docs or docs_dir()
@@ -96,7 +96,7 @@ def cmd_all(args) -> int:
         log = out / f"{name}.log"
         _say(f"[{i}/{len(names)}] {name:<16} running (log {log}) ...")
         load0, t0 = os.getloadavg()[0], time.monotonic()
-        rc = _run_logged(_parser(), cmd_reproduce, argv, log)
+        rc = args.run_one(argv, log)
         seconds, loads = time.monotonic() - t0, (load0, os.getloadavg()[0])
         module = load(name)
         results = f", {docs / 'figures' / module.RESULTS}" if getattr(module, "RESULTS", None) else ""
@@ -111,17 +111,7 @@ def cmd_all(args) -> int:
     return 0 if all(r[1] == 0 for r in rows) else 1
 
 
-def _parser():
-    """Return a `slip` parser with the `reproduce` command only."""
-    import argparse
-
-    from .cli import register
-    parser = argparse.ArgumentParser(prog="slip")
-    register(parser.add_subparsers(dest="command", required=True))
-    return parser
-
-
-def _run_logged(parser, cmd, argv: list[str], log: Path) -> int:
+def run_logged(parser, cmd, argv: list[str], log: Path) -> int:
     """Run one `slip reproduce NAME` with its output (sys.stdout, sys.stderr, fds 1 and 2 and so
     every child process's) going to `log`."""
     from incipient_slip.errors import EXIT_USAGE
