@@ -58,6 +58,16 @@ def test_replay_rig_swaps_the_simulator_for_replay():
     assert "rig_sim" not in got and got["replay"].params["path"] == "x.mcap"
 
 
+@pytest.mark.parametrize("method", ["injection", "e19", "none"])
+def test_replay_skips_every_topic_the_launch_writes_itself(method):
+    """A recording of a whole run also holds the old run's estimates, grip commands and events;
+    replayed, they reached the live controller and supervisor (seq gaps, dropped commands)."""
+    desc = load(find_launch_file("stabilize.yaml"), {"rig": "replay", "recording": "x.mcap", "method": method})
+    own = {t for n in desc.topology.nodes if n.name != "replay" for t in (n.outputs or {}) if t != "*"}
+    assert {"/slip/estimate", "/grip/command", "/run/event", "/heartbeat"} & own
+    assert own <= set(nodes(desc)["replay"].params["skip_topics"])
+
+
 def test_hardware_rig_checks_the_devices_then_runs_every_device_node():
     """(The launch itself, with no device attached: tests/devices/test_rig_hardware.py.)"""
     got = nodes(load(find_launch_file("stabilize.yaml"), {"rig": "hardware", "rig_config": "lab.yaml",
