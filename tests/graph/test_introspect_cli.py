@@ -51,6 +51,23 @@ def test_topic_pub_delivers_the_yaml_message_to_a_live_reader(graph, probe):
     assert (got[0].period, got[0].stick_ratio, got[0].gross_slip) == (4, 0.25, True)
 
 
+def test_topic_pub_says_when_no_reader_takes_its_message_and_sends_nothing(graph, probe):
+    """A launch's supervisor takes /sim/truth only from rig_sim: the README's example once
+    printed 'publishing anyway' and exited 0 while nobody received the message."""
+    from incipient_slip.graph.runtime import Node
+    with Node("supervisor", graph_dir=graph.dir, heartbeat_s=0, writers={"/sim/truth": ["rig_sim"]}) as reader:
+        got = []
+        reader.create_subscription(SimTruth, got.append)
+        proc = graph.spawn(["python", "-m", "incipient_slip.cli", "topic", "pub", "/sim/truth", "{period: 3}",
+                            "--wait", "1"])
+        probe.until(lambda: proc.poll() is not None, 60, nodes=[reader], what="slip topic pub to end")
+        out, err = (b.decode() for b in proc.communicate(timeout=10))
+        assert proc.returncode == 1, (out, err)
+        assert "none of the readers of /sim/truth (supervisor) subscribed" in err and "writer" in err
+        assert "published" not in out and not got
+        assert [why for why in reader.refused_writers.values() if "/sim/truth" in why], reader.refused_writers
+
+
 @pytest.mark.parametrize("message,words", [("{stick_ratio: 0.3, bogus: 1}", "no field bogus"),
                                            ("{period: -5}", "period"),
                                            ("[1, 2]", "YAML mapping")])

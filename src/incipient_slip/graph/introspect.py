@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 
 from incipient_slip.errors import UsageError
@@ -197,8 +198,15 @@ def cmd_topic_pub(args) -> int:
     kwargs = {"graph_dir": discovery.graph_dir(args.graph)}
     with _OnePublisher(type(msg), args.topic, **kwargs) as node:
         if readers and not node.pub.wait_for_subscribers(len(readers), args.wait):
+            if node.pub.subscriber_count() == 0:      # a message nobody subscribed to goes nowhere
+                print(f"slip topic pub: none of the readers of {args.topic} ({', '.join(readers)}) "
+                      f"subscribed within {args.wait:g} s, so nothing was sent. A node started by "
+                      f"a launch takes {args.topic} only from that launch's writer of it "
+                      f"(`slip topic info {args.topic}` names it; docs/graph.md); a slow reader: "
+                      f"raise --wait", file=sys.stderr, flush=True)
+                return 1
             print(f"slip topic pub: only {node.pub.subscriber_count()} of {len(readers)} readers "
-                  f"({', '.join(readers)}) subscribed after {args.wait:g} s; publishing anyway",
+                  f"({', '.join(readers)}) subscribed after {args.wait:g} s; publishing to those",
                   flush=True)
         for i in range(args.times):
             seq = node.pub.publish(msg)
