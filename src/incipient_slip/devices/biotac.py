@@ -582,7 +582,8 @@ class BridgeLink:
 
     Non-blocking: `poll()` does what is due now and returns the readings completed since the
     last call; `events` collects (level, text) per state change for the node to log, level
-    "info" or "warn". A sensor is
+    "info", "warn", or "absent" (a warning that the port cannot be opened, which a node may hold
+    back while the device is still expected to appear). A sensor is
     present when its serial number starts with "BT" (SynTouch's check). Failures to open, a
     bridge that does not answer, a missing sensor, an unplug (the port's read fails) or a stream
     that stalls close the port and retry after a back-off that doubles up to `max_backoff_s`.
@@ -653,7 +654,7 @@ class BridgeLink:
             self._serial.write(CMD_STOP + CMD_PROPERTIES)
         except Exception as exc:
             self._serial = None
-            self._retry_later(f"cannot open the bridge on {self.port} ({exc})", now)
+            self._retry_later(f"cannot open the bridge on {self.port} ({exc})", now, level="absent")
             return
         self.stream.restart()
         self.stream.properties.clear()
@@ -690,7 +691,7 @@ class BridgeLink:
         self.state = "disconnected"
         self._retry_later(why, now)
 
-    def _retry_later(self, why: str, now: float) -> None:
-        self.events.append(("warn", f"{why}; next attempt in {self._backoff:.1f} s"))
+    def _retry_later(self, why: str, now: float, level: str = "warn") -> None:
+        self.events.append((level, f"{why}; next attempt in {self._backoff:.1f} s"))
         self._next_try = now + self._backoff
         self._backoff = min(self._backoff * 2, self.max_backoff_s)

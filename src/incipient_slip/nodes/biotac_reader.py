@@ -28,6 +28,8 @@ from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.messages import BiotacPac, BiotacSlow, BiotacStatus, BiotacTare, Heartbeat
 
+QUIET_START_S = 5.0    # link failures before the first connection within this are one info line
+
 
 class BiotacReader(Node):
     """Reads one BioTac through the bridge; publishes its frames and its fault counters."""
@@ -76,6 +78,8 @@ class BiotacReader(Node):
         self.connection = 0
         self.tare_state = "none"
         self.waiting = self.param("wait_subscribers") > 0
+        self.started = time.monotonic()
+        self.said_waiting = False
 
     def make_link(self):
         """The bridge link, or the Cheetah link (same interface); ParamError if it cannot be made."""
@@ -92,6 +96,12 @@ class BiotacReader(Node):
         except (RuntimeError, ValueError) as exc:
             raise ParamError(f"node {self.name!r}: {exc}") from None
 
+    def _quiet_start(self) -> bool:
+        """Whether a port that cannot be opened is still part of the start: no connection yet,
+        and less than QUIET_START_S since ours (an emulated rig started beside us opens its ports
+        a moment after; a wrong port on the real rig is warned about, every attempt, after that)."""
+        return self.link.connections == 0 and time.monotonic() - self.started < QUIET_START_S
+
     def on_tare(self, msg: BiotacTare) -> None:
         self.tare.frames = int(round(msg.duration_s * bt.FRAME_RATE_HZ))
         self.tare.start()
@@ -105,7 +115,12 @@ class BiotacReader(Node):
         state = self.link.state
         readings = self.link.poll()
         for level, text in self.link.events:
-            self.warn(text) if level == "warn" else self.log(text)
+            if level == "absent" and self._quiet_start():
+                if not self.said_waiting:       # one line, not one warning per back-off
+                    self.said_waiting = True
+                    self.log(f"waiting up to {QUIET_START_S:g} s for the port to appear ({text})")
+                continue
+            self.log(text) if level == "info" else self.warn(text)
         self.link.events.clear()
         if self.link.connections != self.connection:     # a new connection: re-anchor the clock
             self.connection = self.link.connections

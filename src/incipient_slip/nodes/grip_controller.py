@@ -74,7 +74,12 @@ class GripController(Node):
         self.send(answers)
 
     def on_estimate(self, msg: SlipEstimate) -> None:
-        self.send(*self.core.estimate(msg.period, msg.stick_ratio, msg.valid, msg.method, msg.reason))
+        answers, warning = self.core.estimate(msg.period, msg.stick_ratio, msg.valid, msg.method, msg.reason)
+        if warning and not msg.valid and msg.reason == "filling":
+            # expected at the start of every run: the estimator's window is not full yet
+            self.log(f"{warning}: the force holds until the estimator's window is full")
+            warning = ""
+        self.send(answers, warning)
 
     def send(self, answers, warning: str = "") -> None:
         if warning:

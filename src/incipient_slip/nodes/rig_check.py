@@ -122,7 +122,7 @@ def check_biotac(cfg: dict, timeout_s: float) -> str:
         while time.monotonic() < deadline:
             if link.poll():
                 return ""
-            failed = [text for level, text in link.events if level == "warn"]
+            failed = [text for level, text in link.events if level != "info"]
             if failed:                       # the first attempt failed: say why, no retry
                 return f"biotac: {failed[0].split('; next attempt')[0]}"
             time.sleep(0.01)
