@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -118,6 +119,8 @@ def cmd_reproduce(args) -> int:
         for name in EXPERIMENTS:
             module = load(name)
             print(f"{name:<{width}}  {module.HELP} (docs/{module.DOC}; 2 cores: {list_line(name, times)})")
+        print("(times: wall time within `slip reproduce all` on a quiet 2-core machine, which shares data "
+              "sets and fits between experiments; alone, or on a busy machine, one takes longer)", file=sys.stderr)
         return 0
     module = load(args.experiment)
     settings = settings_from_args(args, module)
