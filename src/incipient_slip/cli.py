@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import signal
+import os
 import sys
 
 from incipient_slip.errors import EXIT_INTERRUPTED, EXIT_USAGE, UsageError
+
+EXIT_BROKEN_PIPE = 128 + 13    # what a shell reports for a tool ended by SIGPIPE
 
 # "module" (its register) or "module:function": register(subparsers) -> None, adding exactly
 # these commands (a test checks)
@@ -61,8 +63,6 @@ def _where(args: argparse.Namespace) -> str:
 
 def main(argv: list[str] | None = None, modules: tuple[str, ...] = COMMAND_MODULES) -> int:
     """Runs `slip` (or, with `modules`, a subset of its commands); returns the exit code."""
-    # `slip ... | head` should end quietly when the reader goes away, like any Unix tool.
-    signal.signal(signal.SIGPIPE, signal.SIG_DFL)
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser(modules_for(argv, modules)).parse_args(argv)
     try:
@@ -72,6 +72,12 @@ def main(argv: list[str] | None = None, modules: tuple[str, ...] = COMMAND_MODUL
         return EXIT_USAGE
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # `slip ... | head`: the reader went away; end quietly, like any Unix tool. (Not by
+        # SIGPIPE's default action: a node killed by it leaves its announcement behind; the
+        # graph tools' nodes end themselves cleanly on it, topic_nodes.say.)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
 
 
 if __name__ == "__main__":

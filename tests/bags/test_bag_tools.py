@@ -159,3 +159,28 @@ def test_demo_launch_prints_a_summary_and_exits_0(graph):
     assert run.returncode == 0, run.stdout + run.stderr
     assert "648 messages on 5 topics" in run.stdout
     assert "PASS" in run.stdout
+
+
+@pytest.mark.timeout(60)
+def test_topic_echo_into_a_reader_that_leaves_ends_cleanly_and_withdraws_itself(playing):
+    """`slip topic echo ... | head`: the echo once died by SIGPIPE and left its announcement,
+    which the next tool removed with a warning."""
+    from incipient_slip.graph import discovery
+    proc = subprocess.Popen(TOOLS + ["topic", "echo", "/biotac/pac", "--json"], env=playing.env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    first = proc.stdout.readline()                # what `head -1` reads, then it goes away
+    proc.stdout.close()
+    assert proc.wait(timeout=30) == 0
+    assert json.loads(first)["topic"] == "/biotac/pac"
+    err = proc.stderr.read().decode()
+    assert "Traceback" not in err and "BrokenPipe" not in err, err
+    assert "slip_topic_echo" not in [n.name for n in discovery.scan(playing.dir, clean=False)]
+    assert not [p for p in playing.dir.iterdir() if p.name.startswith("slip_topic_echo")]
+
+
+@pytest.mark.timeout(30)
+def test_a_printing_command_into_a_reader_that_leaves_ends_without_a_traceback():
+    proc = subprocess.Popen(TOOLS + ["bag", "info", DEMO], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()                           # gone before the first line
+    assert proc.wait(timeout=30) == 141
+    assert proc.stderr.read() == b""

@@ -172,6 +172,8 @@ def _guard(handler):
     def run(args) -> int:
         try:
             return handler(args)
+        except BrokenPipeError:     # not bad input: the reader of stdout went away (cli.main)
+            raise
         except Exception as exc:
             from incipient_slip.graph.bag import BagError    # loaded already if it raised one
             if isinstance(exc, (BagError, ValueError, OSError)):

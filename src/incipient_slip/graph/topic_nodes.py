@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 import time
 from collections import deque
 
@@ -12,7 +13,17 @@ from incipient_slip.graph import discovery
 from incipient_slip.graph.runtime import Node
 from incipient_slip.messages import MessageError, decode_any, to_plain
 
-__all__ = ["TopicList", "TopicEcho", "TopicHz", "NOTHING_YET_S"]
+__all__ = ["TopicList", "TopicEcho", "TopicHz", "NOTHING_YET_S", "say"]
+
+
+def say(node: Node, text: str) -> None:
+    """Prints `text`; when the reader of stdout went away (`slip topic echo | head`), ends `node`
+    cleanly (its announcement withdrawn, exit 0) instead of letting every callback raise."""
+    try:
+        print(text, flush=True)
+    except BrokenPipeError:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())   # nothing left to flush
+        node.shutdown("the reader of stdout went away")
 
 
 class TopicList(Node):
@@ -53,15 +64,14 @@ class TopicList(Node):
             row["rate_hz"] = self.counts.get(row["topic"], 0) / elapsed
         table = sorted(rows.values(), key=lambda r: r["topic"])
         if self.param("json"):
-            print(json.dumps(table))
+            say(self, json.dumps(table))
         elif not table:
-            print(f"no topics in graph {self._dir}")
+            say(self, f"no topics in graph {self._dir}")
         else:
             width = max(len(r["topic"]) for r in table)
-            print(f"{'topic':<{width}}  {'type':<14} {'rate_hz':>9}  publishers")
-            for r in table:
-                print(f"{r['topic']:<{width}}  {r['type']:<14} {r['rate_hz']:>9.1f}  "
-                      f"{', '.join(sorted(r['publishers'])) or '-'}")
+            say(self, "\n".join([f"{'topic':<{width}}  {'type':<14} {'rate_hz':>9}  publishers"] + [
+                f"{r['topic']:<{width}}  {r['type']:<14} {r['rate_hz']:>9.1f}  "
+                f"{', '.join(sorted(r['publishers'])) or '-'}" for r in table]))
         self.shutdown()
 
 
@@ -107,11 +117,10 @@ class TopicEcho(Node):
             return
         plain = to_plain(msg)
         if self.param("json"):
-            print(json.dumps({"topic": topic, **{k: _json_safe(v) for k, v in plain.items()}}),
-                  flush=True)
+            say(self, json.dumps({"topic": topic, **{k: _json_safe(v) for k, v in plain.items()}}))
         else:   # YAML documents, one field a line, arrays inline (JSON is YAML)
             lines = [f"--- # {topic}"] + [f"{k}: {_yaml_value(v)}" for k, v in plain.items()]
-            print("\n".join(lines), flush=True)
+            say(self, "\n".join(lines))
         self.printed += 1
         if self.param("count") and self.printed >= self.param("count"):
             self.shutdown()
@@ -141,7 +150,7 @@ class TopicHz(Node):
 
     def report(self) -> None:
         if len(self.recv) < 2:
-            print(f"{self.param('topic')}: no messages yet", flush=True)
+            say(self, f"{self.param('topic')}: no messages yet")
             return
         import numpy as np
         dt = np.diff(np.array(self.recv, dtype=np.int64)) / 1e9
@@ -149,6 +158,6 @@ class TopicHz(Node):
         dstamp = dstamp[dstamp > 0]          # a replay that loops restarts its stamps
         rate = 1.0 / dt.mean() if dt.mean() > 0 else float("inf")
         stamp_rate = 1.0 / dstamp.mean() if dstamp.size else float("nan")
-        print(f"{self.param('topic')}: rate {rate:.2f} Hz (by stamps {stamp_rate:.2f} Hz)  "
-              f"min {dt.min():.4f} s  max {dt.max():.4f} s  std {dt.std():.5f} s  "
-              f"window {len(self.recv)}", flush=True)
+        say(self, f"{self.param('topic')}: rate {rate:.2f} Hz (by stamps {stamp_rate:.2f} Hz)  "
+                  f"min {dt.min():.4f} s  max {dt.max():.4f} s  std {dt.std():.5f} s  "
+                  f"window {len(self.recv)}")
