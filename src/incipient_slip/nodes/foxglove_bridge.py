@@ -69,7 +69,8 @@ class FoxgloveBridge(Node):
                              pac_view_hz=self.param("pac_view_hz"),
                              audio_block_frames=self.param("audio_block_frames"))
         self.on_shutdown(self.view.close)
-        self.log(f"serving ws://{host}:{self.view.port} (read-only)")
+        self.log(f"serving ws://{host}:{self.view.port} (read-only; clients must speak the "
+                 f"foxglove.sdk.v1 subprotocol: Foxglove, Lichtblick since its PR #819)")
         self.create_raw_subscription(self.on_message)
         self.untyped: set[str] = set()     # announced topics of no known type (replay's "raw")
         self.create_timer(1.0, self.offer_announced)
