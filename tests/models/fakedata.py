@@ -61,5 +61,6 @@ def write_fake_dataset(out: Path, n_series: int = 10, n_periods: int = 40, injec
                  actuator_mm=np.arange(n_periods) * 23 / 450, object_y_mm=y_end,
                  stick_area_ratio=s_true ** (2 / 3), load_ratio_stick=s_true,
                  gross_slip=np.arange(n_periods) >= slip_k, material=np.array(MATERIALS[i % 5]),
-                 injection=np.array(injection), seed=np.array(i, np.int64))
+                 injection=np.array(injection),
+                 seed=np.array(seed * 1_000_003 + i, np.int64))   # per series, from the set's seed as in real sets
     return out

@@ -2,6 +2,7 @@ import json
 
 import pytest
 
+from fakedata import write_fake_dataset
 from incipient_slip.cli import main
 
 
@@ -61,3 +62,21 @@ def test_help_explains_each_command(argv, capsys):
         run(argv)
     assert exc.value.code == 0
     assert len(capsys.readouterr().out) > 200
+
+
+def test_evaluate_refuses_held_out_series_the_model_was_trained_on(tmp_path, capsys):
+    """Data sets of one seed share their series: a model trained on 20 series of seed 3 and
+    scored on a 10-series set of seed 3 was once scored on series it had seen, silently."""
+    big = write_fake_dataset(tmp_path / "big", n_series=20, seed=3)
+    small = write_fake_dataset(tmp_path / "small", n_series=10, seed=3)     # big's first 10 series
+    other = write_fake_dataset(tmp_path / "other", n_series=10, seed=4)
+    model = tmp_path / "e1.npz"
+    assert run(["train", "--method", "e1", "--data", str(big), "--quick", "--out", str(model)]) == 0
+    capsys.readouterr()
+    assert run(["evaluate", "--data", str(small), "--model", str(model)]) == 2
+    err = capsys.readouterr().err
+    assert "are series this model was trained on" in err and "--allow-train-overlap" in err
+    assert run(["evaluate", "--data", str(small), "--model", str(model), "--allow-train-overlap"]) == 0
+    assert "these scores flatter it" in capsys.readouterr().err
+    assert run(["evaluate", "--data", str(other), "--model", str(model)]) == 0
+    assert "trained on" not in capsys.readouterr().err

@@ -7,6 +7,7 @@ The paper's studies built on these are experiments (`slip reproduce estimation`,
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from incipient_slip.errors import UsageError
@@ -59,6 +60,9 @@ def register(subparsers) -> None:
     p.add_argument("--model", type=Path, action="append", required=True,
                    help="model file; repeat for several (the first is the t-test reference)")
     p.add_argument("--json", type=Path, help="also write the scores as JSON here")
+    p.add_argument("--allow-train-overlap", action="store_true",
+                   help="score a model even on held-out series it was trained on (refused by default: "
+                   "data sets of one seed share their series; a warning says the scores flatter it)")
     p.set_defaults(func=cmd_evaluate)
 
 
@@ -110,6 +114,29 @@ def cmd_evaluate(args) -> int:
     return _run(_evaluate, args)
 
 
+def _check_not_trained_on(path, model, ws, test_series, data, allow: bool) -> None:
+    """A held-out series the model was trained on scores it on what it has seen: data sets of one
+    seed share their series (dataset.series_key), so the split alone cannot tell."""
+    trained = set(model.header.get("train_series_keys") or ())
+    if not trained:
+        why = ("made before they were recorded" if "train_series_keys" not in model.header
+               else "its training data stored no series seeds")
+        print(f"note: {path} does not list its training series ({why}): whether {data} holds "
+              f"them is not checked", file=sys.stderr)
+        return
+    seen = sorted(int(i) for i in test_series if ws.series_keys.get(int(i)) in trained)
+    if not seen:
+        return
+    what = (f"{path}: {len(seen)} of the {len(test_series)} held-out series of {data} (e.g. "
+            f"series {seen[0]}) are series this model was trained on (the same physics, material "
+            f"and seed: data sets of one seed share their series)")
+    if not allow:
+        raise ValueError(f"{what}; evaluate on a data set of another seed (slip dataset --seed N), "
+                         "or pass --allow-train-overlap to score it anyway")
+    print(f"WARNING: {what}; scored anyway (--allow-train-overlap): these scores flatter it",
+          file=sys.stderr)
+
+
 def _evaluate(args) -> int:
     import numpy as np
     from .estimator_core import load_model
@@ -128,6 +155,7 @@ def _evaluate(args) -> int:
                           label=model.header.get("label", "pseudo"))
         if test_series is None:
             test_series = held_out_series(ws.series_materials())
+        _check_not_trained_on(path, model, ws, test_series, data, args.allow_train_overlap)
         te = ws.subset(np.isin(ws.series, test_series))
         name = model.method if model.method not in scores else f"{model.method}:{path.name}"
         scores[name] = series_scores(name, te.y, model.predict(te.X), te.series, te.material)

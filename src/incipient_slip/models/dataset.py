@@ -37,6 +37,7 @@ class Series:
     stick_area_ratio: np.ndarray
     load_ratio_stick: np.ndarray
     gross_slip: np.ndarray
+    seed: int = -1                # the series' own seed (meta.json's series_seed_rule); -1: not stored
 
 
 _REQUIRED_KEYS = ("pac_counts", "electrode_counts", "mocap_t_s", "mocap_y_mm", "period_end_s",
@@ -109,7 +110,18 @@ def load_series(path: str | Path) -> Series:
             stick_area_ratio=opt("stick_area_ratio", np.nan).astype(np.float64),
             load_ratio_stick=opt("load_ratio_stick", np.nan).astype(np.float64),
             gross_slip=opt("gross_slip", False).astype(bool),
+            seed=int(data["seed"]) if "seed" in data.files else -1,
         )
+
+
+def series_key(physics_fingerprint: str, material: str, seed: int) -> str:
+    """Who a series is across data sets: the same physics, material and seed simulate the same
+    series, so two data sets of one seed share series (a 20- and a 500-series set of seed 0 share
+    their first 20). A model's header lists its training series' keys; `slip evaluate` refuses
+    held-out series among them. "" when the series' seed is not stored."""
+    if seed < 0:
+        return ""
+    return hashlib.sha256(f"{physics_fingerprint}|{material}|{seed}".encode()).hexdigest()[:16]
 
 
 def dataset_hash(data_dir: str | Path) -> str:

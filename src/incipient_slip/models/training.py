@@ -54,6 +54,7 @@ class WindowSet:
     spec: FeatureSpec
     data_hash: str = ""
     skipped_series: list = field(default_factory=list)   # no gross slip detected
+    series_keys: dict = field(default_factory=dict)      # series index -> dataset.series_key
 
     def subset(self, mask: np.ndarray) -> "WindowSet":
         keep = {k: getattr(self, k)[mask] for k in ("X", "y", "series", "material", "period",
@@ -61,7 +62,7 @@ class WindowSet:
                                                   "tangential_force_n", "normal_force_kpa",
                                                   "post_slip")}
         return WindowSet(**keep, spec=self.spec, data_hash=self.data_hash,
-                         skipped_series=self.skipped_series)
+                         skipped_series=self.skipped_series, series_keys=self.series_keys)
 
     def series_materials(self) -> dict:
         return {int(s): str(m) for s, m in zip(self.series, self.material)}
@@ -147,14 +148,15 @@ def load_window_sets(data_dir: str | Path, specs, min_window_s: float | None = N
 
 
 def _series_windows(options: tuple, path) -> tuple:
-    """Return (series index, None) for a series without gross slip, else (series index, one
-    tuple of columns per spec, None where the spec keeps no window of it); options: (specs,
-    min_window_s, after_slip, label)."""
-    specs, min_window_s, after_slip, label = options
+    """Return (series index, its series_key, None) for a series without gross slip, else (series
+    index, its key, one tuple of columns per spec, None where the spec keeps no window of it);
+    options: (specs, min_window_s, after_slip, label, the data set's physics fingerprint)."""
+    specs, min_window_s, after_slip, label, fingerprint = options
     s = ds.load_series(path)
+    key = ds.series_key(fingerprint, s.material, s.seed)
     lab = label_series(s)
     if lab.gross_slip_index < 0:
-        return s.index, None
+        return s.index, key, None
     target = training_labels(s, lab, label)
     parts: list = [None] * len(specs)
     # specs with the same window on the same stream keep the same windows: their features in
@@ -177,7 +179,7 @@ def _series_windows(options: tuple, path) -> tuple:
             parts[j] = (X, target[k], np.full(len(k), s.index), np.full(len(k), s.material, dtype=object), k,
                         s.stick_area_ratio[k], s.load_ratio_stick[k], s.tangential_force_n[k],
                         s.normal_force_kpa[k], k > lab.gross_slip_index)
-    return s.index, parts
+    return s.index, key, parts
 
 
 def _load_window_sets(data_dir, specs, min_window_s, progress: bool, after_slip: str, label: str,
@@ -186,19 +188,22 @@ def _load_window_sets(data_dir, specs, min_window_s, progress: bool, after_slip:
     desc = f"phi {'+'.join(s.method for s in specs)} {Path(data_dir).name}"
     per_series = []
     with tqdm(total=len(paths), desc=desc, unit="series", disable=not progress, leave=False) as bar:
-        for r in forked_map(_series_windows, paths, workers, (specs, min_window_s, after_slip, label), chunksize=8):
+        options = (specs, min_window_s, after_slip, label, ds.read_meta(data_dir).get("physics_fingerprint", ""))
+        for r in forked_map(_series_windows, paths, workers, options, chunksize=8):
             per_series.append(r)
             bar.update()
-    skipped = [index for index, parts in per_series if parts is None]
+    skipped = [index for index, _, parts in per_series if parts is None]
+    keys = {index: key for index, key, _ in per_series if key}
     data_hash = ds.dataset_hash(data_dir)
     out = []
     for j, spec in enumerate(specs):
-        parts = [p[j] for _, p in per_series if p is not None and p[j] is not None]
+        parts = [p[j] for _, _, p in per_series if p is not None and p[j] is not None]
         if not parts:
             raise ds.DatasetError(f"{data_dir}: no labelled windows (no series with gross slip?)")
         cols = [np.concatenate(c) for c in zip(*parts)]
         cols[3] = cols[3].astype(str)
-        out.append(WindowSet(*cols, spec=spec, data_hash=data_hash, skipped_series=list(skipped)))
+        out.append(WindowSet(*cols, spec=spec, data_hash=data_hash, skipped_series=list(skipped),
+                             series_keys=keys))
     return out
 
 
@@ -503,7 +508,9 @@ def train_model(ws: WindowSet, kind: str = "svr", max_train: int | None = 6000,
     model.header.update({"hyper_parameters": report.get("params"), "regressor": kind,
                          "training_data_hash": ws.data_hash, "n_train_windows": int(len(y)),
                          "n_fit_windows": report.get("n_fit"),
-                         "train_series": [int(v) for v in np.unique(groups)]})
+                         "train_series": [int(v) for v in np.unique(groups)],
+                         "train_series_keys": sorted(ws.series_keys[int(v)] for v in np.unique(groups)
+                                                     if int(v) in ws.series_keys)})
     return TrainResult(model, report)
 
 
