@@ -45,6 +45,8 @@ from incipient_slip.models import labels
 
 PERIOD_S = 0.5
 SECOND_HALF_S = PERIOD_S / 2
+# what an overlay entry without an interval says: the plan left nothing to bound it with
+UNBOUNDED = "too few levels or trials to bound it: identify with 3 or more F_N levels"
 
 
 class IdentificationError(ValueError):
@@ -473,8 +475,12 @@ def overlay(results: dict, protocol: str = "launch identify.yaml", date: str | N
                                                                "gain_rel_sd")}}}
 
     def entry(value, unit, interval, what):
-        return {"value": float(value), "unit": unit, "source": f"{src}: {what}",
-                "interval": [float(interval[0]), float(interval[1])]}
+        out = {"value": float(value), "unit": unit, "source": f"{src}: {what}"}
+        if all(math.isfinite(v) for v in interval):
+            out["interval"] = [float(interval[0]), float(interval[1])]
+        else:       # e.g. two force levels fit exactly: no spread to bound it with
+            out["source"] += f"; no interval ({UNBOUNDED})"
+        return out
 
     pre, ss = {}, {}
     if "k_ref" in stiff:

@@ -151,6 +151,34 @@ def test_a_file_that_is_not_an_overlay_is_refused(tmp_path):
         apply_overlay(load_params("default")[0], doc)
 
 
+def test_a_two_level_plan_writes_values_without_intervals_that_validation_takes(tmp_path):
+    """Two levels leave one after the run-in: k_b and beta fit exactly. The overlay once held
+    intervals [0, inf] and [-inf, inf], and validation then ran the rig at k_b = 0 (a
+    ZeroDivisionError); now those entries have a value only, and the points are the others'."""
+    plan = identify.Plan(levels_kpa=(2.3, 1.1), protocols=("stiffness",))
+    records, results = idn.identify_sim(idn.scene_with(idn.hidden_set(2)), "petg", 2, plan)
+    assert not all(math.isfinite(v) for v in results["stiffness"]["k_ref_interval"])
+    doc = load_overlay(identify.write_outputs(results, records, tmp_path)["overlay"])
+    k_b = doc["pre_slip"]["bulk_shear_n_per_mm"]
+    assert "interval" not in k_b and identify.UNBOUNDED in k_b["source"]
+    assert "interval" not in doc["pre_slip"]["bulk_stiffening_exponent"]
+    points = validation.overlay_points(doc)
+    assert not [n for n in points if n.startswith("pre_slip.")] and "identified" in points
+
+
+@pytest.mark.parametrize("entry, words", [
+    ({"value": 0.5, "unit": "N/mm", "source": "x", "interval": [0.0, float("inf")]}, "two finite numbers"),
+    ({"value": 0.5, "unit": "N/mm", "source": "x", "interval": [0.0, 0.9]}, "must be > 0"),
+    ({"value": 0.5, "unit": "N/mm", "source": "x", "interval": [0.6, 0.9]}, "does not hold its value"),
+    ({"value": 0.5, "unit": "N/mm", "source": "x", "interval": [0.4]}, "two finite numbers"),
+    ({"value": -0.5, "unit": "N/mm", "source": "x"}, "must be > 0"),
+])
+def test_an_overlay_with_an_interval_the_rig_cannot_run_is_refused_in_one_line(entry, words):
+    doc = {"provenance": {}, "pre_slip": {"bulk_shear_n_per_mm": entry}}
+    with pytest.raises(SceneError, match=words):
+        apply_overlay(load_params("default")[0], doc)
+
+
 def test_launch_identify_recovers_hidden_parameters_through_the_graph(graph, tmp_path):
     """The same protocols through real processes and sockets: rig_sim (commanded, lock-step) and
     the identifier node; the scene file hides parameters other than the defaults."""

@@ -215,13 +215,18 @@ class Identifier(Node):
         st, lag = results["stiffness"], results["lag"]
         parts = []
         if "k_ref" in st:
-            parts.append(f"k_b {st['k_ref']:.3f} N/mm at 1 N [{st['k_ref_interval'][0]:.3f}, "
-                         f"{st['k_ref_interval'][1]:.3f}], beta {st['beta']:.2f}")
+            lo, hi = st["k_ref_interval"]
+            bound = (f"[{lo:.3f}, {hi:.3f}]" if math.isfinite(lo) and math.isfinite(hi)
+                     else "(no interval: too few levels)")
+            parts.append(f"k_b {st['k_ref']:.3f} N/mm at 1 N {bound}, beta {st['beta']:.2f}")
         if "mu" in st:
             parts.append(f"mu {st['mu']:.3f}")
         if lag:
             parts.append(f"lag {lag['tau_s']:.2f} s [{lag['tau_interval'][0]:.2f}, {lag['tau_interval'][1]:.2f}]")
         self.log("identified: " + ", ".join(parts or ["nothing (too few periods)"]) + f"; overlay {paths['overlay']}")
+        if "k_ref" in st and not all(math.isfinite(v) for v in st["k_ref_interval"] + st["beta_interval"]):
+            self.warn(f"k_b and beta have no interval: {st['levels']} F_N level(s) after the run-in fit "
+                      f"exactly; the overlay gives their values only ({identify.UNBOUNDED})")
 
 
 def main(argv=None):

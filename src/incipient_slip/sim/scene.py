@@ -130,7 +130,34 @@ def overlay_entries(doc: dict, where: str = "overlay") -> dict[tuple, dict]:
         v = entry["value"]
         if not (isinstance(v, (int, float)) and math.isfinite(v)):
             raise SceneError(f"{where}: {'.'.join(name)} = {v!r} is not a finite number")
+        _check_interval(f"{where}: {'.'.join(name)}", entry)
     return out
+
+
+# units of quantities that are positive (stiffnesses, gains, forces): a value or an interval end
+# at or below 0 would simulate an impossible rig (a zero stiffness divides by zero). A lag (s) may
+# be 0: a slide in the period of the step
+POSITIVE_UNITS = ("N/mm", "N/kPa", "N")
+
+
+def _check_interval(what: str, entry: dict) -> None:
+    """An entry's value, and its interval when it has one ([low, high], finite, low <= value <=
+    high; validation runs the rig at each end), positive where its unit says so."""
+    v, interval = entry["value"], entry.get("interval")
+    positive = entry["unit"] in POSITIVE_UNITS
+    if positive and v <= 0:
+        raise SceneError(f"{what} = {v!r} {entry['unit']}: must be > 0")
+    if interval is None:
+        return
+    if not (isinstance(interval, (list, tuple)) and len(interval) == 2
+            and all(isinstance(x, (int, float)) and math.isfinite(x) for x in interval)):
+        raise SceneError(f"{what}: interval {interval!r} is not two finite numbers [low, high] "
+                         "(an unbounded quantity has no interval: remove it)")
+    low, high = interval
+    if not low <= v <= high:
+        raise SceneError(f"{what}: interval [{low}, {high}] does not hold its value {v}")
+    if positive and low <= 0:
+        raise SceneError(f"{what}: interval [{low}, {high}] {entry['unit']} reaches {low} (must be > 0)")
 
 
 def apply_overlay(params: dict, doc: dict, where: str = "overlay", values: dict | None = None) -> dict:
