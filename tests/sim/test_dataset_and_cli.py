@@ -185,3 +185,32 @@ def test_series_are_bit_identical_to_the_committed_reference():
     differ = {case: [k for k in recorded[case] if got[case].get(k) != recorded[case][k]]
               for case in recorded if got[case] != recorded[case]}
     assert not differ, f"arrays differ from the reference: {differ}"
+
+
+def test_an_interrupted_data_set_has_no_meta_and_is_made_again(tmp_path, monkeypatch):
+    """meta.json is written last: a crash half-way once left a directory that looked finished
+    to the experiments' cache (and, with no series file, failed every rerun)."""
+    from incipient_slip.experiments.datasets import _reusable, ensure_dataset
+    from incipient_slip.models import dataset as ds
+    from incipient_slip.sim import dataset as sim_dataset
+    scene, out = load_scene("paper"), tmp_path / "paper"
+    real_worker = sim_dataset._worker
+
+    def crash_at_series_2(job):
+        if job[3] == 2:
+            raise RuntimeError("killed")
+        return real_worker(job)
+    monkeypatch.setattr(sim_dataset, "_worker", crash_at_series_2)
+    with pytest.raises(RuntimeError, match="killed"):
+        write_dataset(scene, 4, 7, out, workers=1, steps=12, progress=False)
+    assert not (out / "meta.json").exists() and len(list(out.glob("series_*.npz"))) == 2
+    with pytest.raises(ds.DatasetError, match="meta.json"):
+        ds.read_meta(out)
+    assert not _reusable(scene, 4, 7, 12, out)
+    monkeypatch.setattr(sim_dataset, "_worker", real_worker)
+    ensure_dataset(scene, 4, 7, out, workers=1, steps=12, progress=False)
+    assert ds.read_meta(out)["n_series"] == 4 and len(ds.series_paths(out)) == 4
+    # a finished set whose series files went missing is not reused either (it raised before)
+    for p in out.glob("series_*.npz"):
+        p.unlink()
+    assert not _reusable(scene, 4, 7, 12, out)

@@ -26,14 +26,15 @@ def _scene(scene):
 
 
 def _reusable(scene, n_series: int, seed: int, steps: int, out_dir: Path) -> bool:
+    """Whether out_dir holds this data set, finished (meta.json is written last) and made by the
+    same physics: a recalibrated simulator must not be evaluated on the old one's data."""
     try:
         meta = ds.read_meta(out_dir)
+        n_files = len(ds.series_paths(out_dir))
     except ds.DatasetError:
         return False
-    # Reuse only data made by the same physics: a recalibrated simulator must not be
-    # evaluated on the old one's data.
     return (meta.get("scene") == scene.name and meta.get("seed") == seed and meta.get("n_series") == n_series
-            and meta.get("steps") == steps and len(ds.series_paths(out_dir)) == n_series
+            and meta.get("steps") == steps and n_files == n_series
             and meta.get("physics_fingerprint") == physics_fingerprint(scene))
 
 

@@ -141,6 +141,9 @@ def write_dataset(scene: Scene, n_series: int, seed: int, out_dir: str | Path, *
                   views: dict | None = None) -> Path:
     """Write a data set directory (meta.json + series_NNNNN.npz) and return its path.
 
+    meta.json is written last, once every series is on disk: a directory without it is a run that
+    did not finish (a crash, Ctrl-C), which readers refuse and `experiments.datasets` redoes.
+
     client: a dask Client (`cluster.open_client`) to run the series on as tasks; else `workers`
     local processes (default all cores; 1 runs in this process).
     views: {directory: scene} of data sets of the same size and seed that follow from this
@@ -155,20 +158,30 @@ def write_dataset(scene: Scene, n_series: int, seed: int, out_dir: str | Path, *
     for m in mats:
         if m not in scene.params["materials"]:
             raise ValueError(f"unknown material {m!r} (known: {', '.join(scene.params['materials'])})")
-    for sc, where in [(scene, out_dir)] + views:
-        _write_meta(sc, n_series, seed, Path(where), mats, steps)
+    dirs = [(scene, Path(out_dir))] + [(v, Path(where)) for v, where in views]
+    for _, where in dirs:
+        where.mkdir(parents=True, exist_ok=True)
+        (where / "meta.json").unlink(missing_ok=True)     # complete again only when all is written
     out = Path(out_dir)
     jobs = [(scene, mats, seed, i, steps, str(out), views) for i in range(n_series)]
     if client is not None:
         for _ in as_done(client, _worker, [(job,) for job in jobs], desc=f"dataset {scene.name}",
                          progress=progress, key=f"series-{scene.name}"):
             pass
-        return out
+    else:
+        _run_local(jobs, n_series, workers, progress, scene.name)
+    for sc, where in dirs:
+        _write_meta(sc, n_series, seed, where, mats, steps)
+    return out
+
+
+def _run_local(jobs: list, n_series: int, workers: int | None, progress: bool, name: str) -> None:
+    """The series jobs in this process (workers 1) or a local process pool."""
     workers = max(1, int(workers or os.cpu_count() or 1))
     bar = None
     if progress:
         from tqdm import tqdm
-        bar = tqdm(total=n_series, unit="series", desc=f"dataset {scene.name}")
+        bar = tqdm(total=n_series, unit="series", desc=f"dataset {name}")
     if workers == 1:
         for job in jobs:
             _worker(job)
@@ -183,7 +196,6 @@ def write_dataset(scene: Scene, n_series: int, seed: int, out_dir: str | Path, *
                     bar.update()
     if bar:
         bar.close()
-    return out
 
 
 def _write_meta(scene: Scene, n_series: int, seed: int, out: Path, mats: tuple, steps: int) -> None:
@@ -201,4 +213,6 @@ def _write_meta(scene: Scene, n_series: int, seed: int, out: Path, mats: tuple, 
         "series_material_rule": "materials[i % len(materials)]",
         "series_seed_rule": "SeedSequence(seed, spawn_key=(i,)) -> int63",
     }
-    (out / "meta.json").write_text(json.dumps(meta, indent=1))
+    tmp = out / ".meta.json.tmp"
+    tmp.write_text(json.dumps(meta, indent=1))
+    os.replace(tmp, out / "meta.json")          # whole or absent: its presence says "finished"
