@@ -94,6 +94,7 @@ def test_bag_recover_and_export_print_what_they_did(tmp_path, capsys):
     assert tools.main(["bag", "recover", str(DEMO), str(tmp_path / "r.mcap")]) == 0
     out = capsys.readouterr().out
     assert "recovered 648 messages on 5 topics" in out and "finished, nothing lost" in out
+    assert "recovered per topic:\n  /actuator/state: " in out
     assert tools.main(["bag", "export", str(DEMO), str(tmp_path / "f.mcap"), "--foxglove"]) == 0
     out = capsys.readouterr().out
     assert "exported 848 messages on 6 JSON channels" in out     # 648 + 200 P_AC as audio

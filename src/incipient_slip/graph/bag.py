@@ -511,6 +511,7 @@ class Recovery:
             lines.append(f"lost:      what the writer received after that and had not yet put on "
                          f"disk (a recorder killed with SIGKILL: at most its flush_s, {FLUSH_S} s "
                          f"by default)")
+        lines.append("recovered per topic:")
         lines += [f"  {topic}: {n}" for topic, n in sorted(self.counts.items())]
         return "\n".join(lines)
 
