@@ -132,6 +132,7 @@ def load_window_sets(data_dir: str | Path, specs, min_window_s: float | None = N
                 f"{data_dir}: data set has injection={meta.get('injection')} but method "
                 f"{spec.method} needs injection={spec.injection} (scene 'paper' for injection, "
                 "'no_injection' for vibrotactile)")
+    _check_streams(data_dir, meta, specs)
     computed: list = []
 
     def compute() -> list[WindowSet]:
@@ -145,6 +146,18 @@ def load_window_sets(data_dir: str | Path, specs, min_window_s: float | None = N
     return [cache.cached("windows", cache.digest("windows-1", data_hash, repr(spec), min_window_s, after_slip,
                                                  label, code), lambda i=i: compute()[i])
             for i, spec in enumerate(specs)]
+
+
+def _check_streams(data_dir, meta: dict, specs) -> None:
+    """DatasetError when the data set's series hold none of a spec's stream (a scene without that
+    sensor, e.g. 'mechanics'), rather than the later 'no labelled windows'."""
+    first = ds.load_series(ds.series_paths(data_dir)[0])
+    for spec in specs:
+        if (len(first.pac_counts) if spec.stream == "pac" else len(first.electrode_counts)) == 0:
+            what = "P_AC samples" if spec.stream == "pac" else "electrode samples"
+            raise ds.DatasetError(
+                f"{data_dir}: its series hold no {what}: scene {meta.get('scene')!r} does not "
+                f"simulate them, and method {spec.method} reads them (slip dataset --scene paper)")
 
 
 def _series_windows(options: tuple, path) -> tuple:
