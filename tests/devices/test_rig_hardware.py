@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from incipient_slip.devices import rig_config
+from incipient_slip.devices import pzt, rig_config
 from incipient_slip.devices.natnet_emulator import NatNetEmulator, free_udp_port
 from incipient_slip.devices.zaber_emulator import ZaberEmulator
 from incipient_slip.errors import UsageError
@@ -67,12 +67,30 @@ def test_hardware_launch_without_devices_exits_2_with_one_line_per_device(tmp_pa
     text = err.decode()
     assert proc.returncode == 2, text
     lines = [l for l in text.splitlines() if l.startswith("[rig_check]") and "shutting down" not in l]
-    assert [re.match(r"\[rig_check\] (\w+):", l).group(1) for l in lines] == ["natnet", "zaber", "ur5", "biotac"]
+    # the PZT's sound card is checked too: missing here unless this machine has sounddevice and a card
+    card = ["pzt"] if pzt.check_output_device() else []
+    assert [re.match(r"\[rig_check\] (\w+):", l).group(1) for l in lines] == ["natnet", "zaber", "ur5", "biotac", *card]
     assert "127.0.0.1" in lines[0] and "ttyNOPE" in lines[1] and "127.1.0.1" in lines[2]
     # a gate: no device node was started beside the check (they slowed it down and had to stop)
     assert re.search(r"gate rig_check exited with exit code 2; not started: [\w, ]*biotac_reader", text)
-    assert re.search(r"\[rig_check\] shutting down: 4 of 4 device\(s\) missing \(checked in [\d.]+ s, "
-                     r"slowest (natnet|zaber|ur5|biotac)\)", text)
+    n = 4 + len(card)
+    assert re.search(rf"\[rig_check\] shutting down: {n} of 5 device\(s\) missing \(checked in [\d.]+ s, "
+                     r"slowest (natnet|zaber|ur5|biotac|pzt)\)", text)
+
+
+def test_the_pzt_check_names_what_is_missing(monkeypatch):
+    def absent():
+        raise RuntimeError("the PZT's sound card needs the sounddevice package and PortAudio (pip install ...)")
+    monkeypatch.setattr(pzt, "load_sounddevice", absent)
+    assert pzt.check_output_device().startswith("pzt: the PZT's sound card needs the sounddevice package")
+
+    class NoCard:
+        @staticmethod
+        def check_output_settings(**kw):
+            raise ValueError(f"No output device matching {kw['device']!r}")
+    monkeypatch.setattr(pzt, "load_sounddevice", lambda: NoCard)
+    line = pzt.check_output_device("USB Audio", 48000)
+    assert "sound card USB Audio cannot play mono float32 at 48000 Hz" in line and "No output device" in line
 
 
 def test_rig_check_passes_when_the_emulated_devices_answer(tmp_path, graph):

@@ -127,6 +127,31 @@ class FileBackend:
             self._wav = None
 
 
+def load_sounddevice():
+    """The sounddevice module, or RuntimeError saying what to install (PortAudio is a system
+    library: its absence is an OSError at import)."""
+    try:
+        import sounddevice as sd
+    except (ImportError, OSError) as exc:
+        raise RuntimeError(f"the PZT's sound card needs the sounddevice package and PortAudio "
+                           f"(pip install -e '.[hardware]'; apt install libportaudio2): {exc}") from None
+    return sd
+
+
+def check_output_device(device: str = "", fs_hz: int = 48000) -> str:
+    """"" when sounddevice loads and `device` ('' = the default output) takes a mono float32
+    stream at fs_hz, else the line naming what is wrong (rig_check's)."""
+    try:
+        sd = load_sounddevice()
+        sd.check_output_settings(device=device or None, channels=1, dtype="float32", samplerate=fs_hz)
+    except RuntimeError as exc:
+        return f"pzt: {exc}"
+    except Exception as exc:     # sounddevice.PortAudioError, ValueError (no such device)
+        return (f"pzt: sound card {device or '(the default output)'} cannot play mono float32 at "
+                f"{fs_hz} Hz: {exc}")
+    return ""
+
+
 class SoundDeviceBackend:
     """A sound card through PortAudio: the card pulls each block in its callback."""
 
@@ -134,11 +159,7 @@ class SoundDeviceBackend:
     pulls = True
 
     def __init__(self, injector: Injector, fs_hz: int, block: int, device: str = ""):
-        try:
-            import sounddevice as sd
-        except (ImportError, OSError) as exc:   # OSError: PortAudio library not found
-            raise RuntimeError(f"backend sounddevice needs the sounddevice package and PortAudio "
-                               f"(pip install -e '.[hardware]'; apt install libportaudio2): {exc}") from None
+        sd = load_sounddevice()
         self.injector = injector
         self.underflows = 0
 

@@ -49,6 +49,8 @@ def cmd_rig_check(args) -> int:
     argv = [f"rig_config:={args.config}", f"timeout_s:={args.timeout}", "stay:=false"]
     if args.biotac_port:
         argv.append(f"biotac_port:={args.biotac_port}")
+    if args.pzt_device is not None:
+        argv += ["pzt:=true", f"pzt_device:={args.pzt_device}"]
     return run_node(_rig_check_class(), argv)
 
 
@@ -78,4 +80,7 @@ def register(subparsers) -> None:
                    help="each device must answer within this (default 3 s)")
     p.add_argument("--biotac-port", default="", metavar="PORT",
                    help="also check the BioTac bridge's serial port (e.g. /dev/ttyACM0)")
+    p.add_argument("--pzt-device", nargs="?", const="", default=None, metavar="CARD",
+                   help="also check the PZT amplifier's sound card (sounddevice name or index; "
+                   "without CARD: the default output), as `launch ... rig:=hardware` does")
     p.set_defaults(func=cmd_rig_check)

@@ -7,7 +7,9 @@ the NatNet server answers a connect with its server info, the Zaber stage answer
 poll on its serial port, the UR controller accepts connections on RTDE (30004) and the
 dashboard (29999, with its banner), the BioTac bridge (`biotac_port`, the launch files' arg of
 that name) answers the property request for a sensor whose serial number starts with "BT" and
-streams a frame of it (a bridge with no sensor, or one that never streams, is missing). Each
+streams a frame of it (a bridge with no sensor, or one that never streams, is missing), and
+with `pzt:=true` the PZT amplifier's sound card (`pzt_device`) takes a mono stream (sounddevice
+and PortAudio installed, the card there). Each
 line says how long its check took, and the last line which device was the slowest.
 
 `launch ... rig:=hardware` starts it as a gate (`gate: true`, `stay: false`), before any device
@@ -22,7 +24,7 @@ import socket
 import time
 from concurrent.futures import ThreadPoolExecutor
 
-from incipient_slip.devices import biotac, natnet, rig_config, zaber
+from incipient_slip.devices import biotac, natnet, pzt, rig_config, zaber
 from incipient_slip.errors import UsageError
 from incipient_slip.graph.params import Param, ParamError, merge_params
 from incipient_slip.graph.runtime import Node, run_node
@@ -132,7 +134,14 @@ def check_biotac(cfg: dict, timeout_s: float) -> str:
     return f"biotac: the bridge on {port}: {what} within {timeout_s:g} s"
 
 
-CHECKS = {"natnet": check_natnet, "zaber": check_zaber, "ur5": check_ur5, "biotac": check_biotac}
+def check_pzt(cfg: dict, timeout_s: float) -> str:
+    """"" when the PZT amplifier's sound card (`pzt_device`, '' = the default output) takes the
+    injector's stream, else the line naming what is missing (sounddevice, PortAudio, the card)."""
+    return pzt.check_output_device(cfg.get("device", ""), int(cfg.get("sample_rate_hz", 48000)))
+
+
+CHECKS = {"natnet": check_natnet, "zaber": check_zaber, "ur5": check_ur5, "biotac": check_biotac,
+          "pzt": check_pzt}
 
 
 class RigCheck(Node):
@@ -145,6 +154,8 @@ class RigCheck(Node):
         "timeout_s": Param(3.0, lo=0.1, hi=60.0, help="each device must answer within this"),
         "stay": Param(True, choices=(False, True), help="after success stay up until stopped"),
         "biotac_port": Param("", help="the BioTac bridge's serial port to check (the launch arg; '' = not checked)"),
+        "pzt": Param(False, choices=(False, True), help="also check the PZT amplifier's sound card (the launch's)"),
+        "pzt_device": Param("", help="with pzt: the sound card, sounddevice name or index ('' = default output)"),
     }
 
     def __init__(self, **kwargs):
@@ -157,6 +168,8 @@ class RigCheck(Node):
             raise ParamError(str(exc)) from None
         if self.param("biotac_port"):
             sections["biotac"] = {"port": self.param("biotac_port")}
+        if self.param("pzt"):
+            sections["pzt"] = {"device": self.param("pzt_device")}
         if not sections:
             raise ParamError(f"rig_config {path}: no device sections ({', '.join(CHECKS)})")
         with ThreadPoolExecutor(len(sections)) as pool:      # in parallel: the slowest one sets the time
