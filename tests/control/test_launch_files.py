@@ -119,3 +119,13 @@ def test_the_shipped_launch_files_resolve_to_the_recorded_graphs():
     assert sorted(got) == sorted(recorded)
     for case in recorded:
         assert got[case] == recorded[case], f"{case}: the graph changed (see make_launch_graphs.py)"
+
+
+def test_the_summary_records_which_model_overlay_and_recording_a_run_used():
+    got = nodes(load(find_launch_file("stabilize.yaml"), {"model": "runs/models/e19.npz", "method": "e19",
+                                                          "params": "runs/identify/identify_overlay.yaml"}))
+    sup = got["supervisor"].params
+    assert (sup["model"], sup["rig_params"], sup["recording"]) == ("runs/models/e19.npz",
+                                                                   "runs/identify/identify_overlay.yaml", "")
+    from incipient_slip.nodes.supervisor import RECORDED
+    assert {"model", "rig_params", "recording"} <= set(RECORDED)

@@ -31,7 +31,9 @@ from incipient_slip.messages import RUN_EVENT_KINDS, ActuatorState, BiotacSlow, 
 
 POSITIVE = dict(lo=1e-3)
 TRUTH_WAIT_S = 5.0          # lock-step: longest wait for the last period's /sim/truth before the summary
-RECORDED = ("method", "s_d", "k", "seed", "material", "rig", "stop_on_travel")     # params copied into the summary
+# params copied into the summary: what a run was, so that a summary says which model, rig
+# params overlay and recording it came from
+RECORDED = ("method", "s_d", "k", "seed", "material", "rig", "stop_on_travel", "model", "rig_params", "recording")
 
 
 class Supervisor(Node):
@@ -60,6 +62,9 @@ class Supervisor(Node):
         # recorded in the summary only
         "method": "", "s_d": Param(float("nan"), finite=False), "k": Param(float("nan"), finite=False),
         "seed": 0, "material": "", "rig": "sim",
+        "model": Param("", help="the estimator's model file, recorded in the summary ('' = the shipped one)"),
+        "rig_params": Param("", help="the simulated rig's params overlay, recorded in the summary"),
+        "recording": Param("", help="the replayed recording (rig:=replay), recorded in the summary"),
     }
 
     def __init__(self, **kwargs):
