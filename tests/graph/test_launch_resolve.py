@@ -261,11 +261,16 @@ def test_an_optional_input_without_a_writer_is_no_warning_and_the_stabilize_laun
     from incipient_slip.nodes.rig_sim import RigSim
     alone = Topology([NodeTopics.of("rig_sim", RigSim, {})])
     assert not any("/pzt/command" in w for w in alone.warnings())
-    assert any("/grip/command" in w for w in alone.warnings())      # a required input still warns
+    # the collection protocol reads no grip command: collect.yaml (no controller) warned on every run
+    assert not any("/grip/command" in w for w in alone.warnings())
+    from incipient_slip.nodes.grip_controller import GripController
+    controller = Topology([NodeTopics.of("grip_controller", GripController, {})])
+    assert any("/slip/estimate" in w for w in controller.warnings())     # a required input still warns
     remapped = Topology([NodeTopics.of("rig_sim", RigSim, {"/pzt/command": "/pzt/other"})])
     assert not any("/pzt/other" in w for w in remapped.warnings())
-    launch_file = Path(__file__).resolve().parents[2] / "launch" / "stabilize.yaml"
-    assert load_text(launch_file.read_text(), {}, str(launch_file)).warnings == []
+    for name in ("stabilize.yaml", "collect.yaml"):
+        launch_file = Path(__file__).resolve().parents[2] / "launch" / name
+        assert load_text(launch_file.read_text(), {}, str(launch_file)).warnings == [], name
 
 
 def test_a_node_without_a_name_is_named_after_its_module_or_script():

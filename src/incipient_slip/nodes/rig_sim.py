@@ -79,8 +79,9 @@ class RigSim(Node):
     """Steps the simulated rig one period at a time and publishes what the devices would."""
 
     INPUTS = {GripCommand.TOPIC: GripCommand, PztCommand.TOPIC: PztCommand, ActuatorCommand.TOPIC: ActuatorCommand}
-    # the scene sets the injection, a command may switch it; only `commanded` reads the actuator's
-    OPTIONAL_INPUTS = frozenset({PztCommand.TOPIC, ActuatorCommand.TOPIC})
+    # the scene sets the injection, a command may switch it; only `commanded` reads the actuator's;
+    # the collection protocol reads no grip command (collect.yaml has no controller)
+    OPTIONAL_INPUTS = frozenset({PztCommand.TOPIC, ActuatorCommand.TOPIC, GripCommand.TOPIC})
     OUTPUTS = {t.TOPIC: t for t in (BiotacPac, BiotacSlow, ObjectPose, PztState, RobotState, SimTruth, ActuatorState)}
     PARAMS = {
         "scene": Param("", help='scene file or name (scenes/); "": the scene of the method (control.SCENE_OF_METHOD)'),
@@ -164,7 +165,7 @@ class RigSim(Node):
         self.wait_for_subscribers()
         if not self.stopping:
             self.log(f"scene {self.rig.scene.name}, material {self.rig.material}, seed "
-                     f"{self.rig.seed}, {self.protocol}, {'lock-step' if self.lockstep else 'real time'}")
+                     f"{self.rig.seed}, {self.protocol}, {self._pace()}")
             self.publish_pzt_state()
             if self.lockstep:
                 self.create_timer(0.05, self.check_lockstep_timeout)
@@ -313,6 +314,10 @@ class RigSim(Node):
             self.warn(throttle_s=1.0, key=("pzt", "bad"), text=f"ignored PztCommand: {exc}")
             return
         self.publish_pzt_state()
+
+    def _pace(self) -> str:
+        factor = self.param("realtime_factor")
+        return "lock-step" if self.lockstep else "real time" if factor == 1.0 else f"{factor:g}x real time"
 
     def publish_pzt_state(self) -> None:
         if self.pzt_pub is None:
