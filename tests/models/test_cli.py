@@ -80,3 +80,15 @@ def test_evaluate_refuses_held_out_series_the_model_was_trained_on(tmp_path, cap
     assert "these scores flatter it" in capsys.readouterr().err
     assert run(["evaluate", "--data", str(other), "--model", str(model)]) == 0
     assert "trained on" not in capsys.readouterr().err
+
+
+def test_train_refuses_to_replace_a_model_without_force(fake_injection_dir, tmp_path, capsys):
+    out = tmp_path / "e1.npz"
+    assert run(["train", "--method", "e1", "--data", str(fake_injection_dir), "--quick", "--out", str(out)]) == 0
+    before = out.read_bytes()
+    assert run(["train", "--method", "e1", "--data", str(fake_injection_dir), "--quick", "--out", str(out),
+                "--kind", "linear"]) == 2
+    assert "exists" in capsys.readouterr().err and out.read_bytes() == before
+    assert run(["train", "--method", "e1", "--data", str(fake_injection_dir), "--quick", "--out", str(out),
+                "--kind", "linear", "--force"]) == 0
+    assert out.read_bytes() != before

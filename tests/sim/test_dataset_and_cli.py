@@ -218,6 +218,7 @@ def test_an_interrupted_data_set_has_no_meta_and_is_made_again(tmp_path, monkeyp
 
 def test_training_on_a_scene_without_the_methods_sensor_names_the_sensor(tmp_path, capsys):
     write_dataset(load_scene("mechanics"), 2, 7, tmp_path / "mech", workers=1, steps=12, progress=False)
-    assert main(["train", "--method", "e19", "--data", str(tmp_path / "mech"), "--quick"]) == 2
+    assert main(["train", "--method", "e19", "--data", str(tmp_path / "mech"), "--quick",
+                 "--out", str(tmp_path / "e19.npz")]) == 2
     err = capsys.readouterr().err
     assert "hold no electrode samples: scene 'mechanics' does not simulate them" in err, err

@@ -46,6 +46,7 @@ def register(subparsers) -> None:
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the grid search's candidate fits "
                    "as dask tasks on this running scheduler")
     p.add_argument("--out", type=Path, help="model file (default runs/models/METHOD.npz)")
+    p.add_argument("--force", action="store_true", help="replace an existing model file")
     p.set_defaults(func=cmd_train)
 
     p = subparsers.add_parser(
@@ -87,6 +88,9 @@ def _train(args) -> int:
     check_scheduler(args.scheduler)
     if args.workers is not None:
         check_workers(args.workers)
+    out = args.out or runs_dir() / "models" / f"{args.method}.npz"
+    if out.exists() and not args.force:       # before the work, not after: no model is lost
+        raise ValueError(f"{out} exists (a model trained before); --out elsewhere, or --force to replace it")
     spec = feature_spec(args.method, window_s=args.window_s)
     ws = load_windows(args.data, spec, after_slip=args.after_slip, label=args.label)
     test_series = held_out_series(ws.series_materials())
@@ -100,7 +104,6 @@ def _train(args) -> int:
     sc = series_scores(args.method, test.y, res.model.predict(test.X), test.series, test.material)
     res.model.header.update(test_series=[int(v) for v in test_series], after_slip=args.after_slip,
                             label=args.label, test_rmse_mean=float(sc.rmse.mean()))
-    out = args.out or runs_dir() / "models" / f"{args.method}.npz"
     save_model(res.model, out)
     s = sc.summary()
     print(f"{args.method}: {args.kind} {res.report.get('params')} on {res.report.get('n_fit')} of "
