@@ -52,8 +52,9 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "evaluate", help="score model files on the held-out series of a data set",
         description="Per-series RMSE and top-10 % RMSE (RMSE over each series' 10 % largest "
-        "absolute errors) on the held-out series, per material, paired t-tests vs the first "
-        "model with Holm correction.")
+        "absolute errors) on the held-out series (per material in --json), paired t-tests vs the "
+        "first model with Holm correction. Held-out series the model was trained on are refused "
+        "(data sets of one seed share their series).")
     p.add_argument("--data", required=True, type=Path, metavar="DIR",
                    help="data set with injection (for P_AC injection and electrode models)")
     p.add_argument("--data-no-injection", type=Path, metavar="DIR",

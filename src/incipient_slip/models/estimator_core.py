@@ -101,8 +101,9 @@ def load_model(path: str | Path | None = None, *, method: str | None = None,
     for name, want in expected.items():
         have = getattr(spec, name)
         if want is not None and (have != want if isinstance(want, str) else not np.isclose(float(have), float(want))):
+            hint = f" (it is a model of method {spec.method!r}: method:={spec.method})" if name == "method" else ""
             raise ModelFileError(f"{path}: feature_spec.{name} is {have!r} but the stream has "
-                                 f"{want!r}; use a model trained for this stream")
+                                 f"{want!r}; use a model trained for this stream{hint}")
     if model.kind == "kernel" and model.centers.shape[1] != spec.n_features:
         raise ModelFileError(f"{path}: centers have {model.centers.shape[1]} features, spec "
                              f"{spec.method} computes {spec.n_features}")
