@@ -11,6 +11,7 @@ brackets tau to 0.5 s / -ln r; four trials narrow it to ~0.1-0.3 s).
 from __future__ import annotations
 
 import math
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -196,6 +197,9 @@ def test_launch_identify_recovers_hidden_parameters_through_the_graph(graph, tmp
                         f"out_dir:={out}", "levels_kpa:=4.7,3.5,2.3,1.1", "protocols:=stiffness,lag", "seed:=4"])
     stdout, stderr = done.communicate(timeout=240)
     assert done.returncode == 0, stderr.decode()[-2000:]
+    # progress: one line per phase (a real rig takes minutes per level), not one per period
+    phases = [line for line in stderr.decode().splitlines() if re.match(r"\[identifier\] period \d+: ", line)]
+    assert any("ramp (F_N 4.70 kPa)" in line for line in phases) and 8 <= len(phases) <= 60, phases
     doc = load_overlay(out / "identify_overlay.yaml")
     assert doc["pre_slip"]["bulk_shear_n_per_mm"]["value"] == pytest.approx(0.62, rel=0.10)
     assert doc["pre_slip"]["bulk_stiffening_exponent"]["value"] == pytest.approx(1.25, abs=0.15)

@@ -102,6 +102,7 @@ class Identifier(Node):
         self.next_period = 0
         self.last_news = time.monotonic()
         self.finished = False
+        self.last_phase = ""                    # of the last command: one progress line per phase
         self.real_time = p("clock") == "tick_start"
         self.window_start: dict[int, int] = {}       # tick_start: period -> first stamp of its window
         self.windows_retried = 0
@@ -186,6 +187,9 @@ class Identifier(Node):
             self.publish(self.command, k + 1 if self.real_time else k)
 
     def publish(self, cmd: identify.Command, k: int) -> None:
+        if cmd.phase != self.last_phase:       # progress: one line per phase, not per period
+            self.last_phase = cmd.phase
+            self.log(f"period {k}: {cmd.phase} (F_N {cmd.normal_force_kpa:.2f} kPa)")
         self.actuator_pub.publish(ActuatorCommand(position_mm=cmd.actuator_mm, period=k))
         self.grip_pub.publish(GripCommand(normal_force_kpa=cmd.normal_force_kpa, period=k, reason=cmd.phase))
 
