@@ -144,9 +144,12 @@ class LinearActuator(Node):
         except zaber.ZaberError as exc:
             self._fault(str(exc))
             return False
-        self.log(f"at {self.param('start_mm'):g} mm; {self.steps} steps of "
-                 f"{1000 * self.param('travel_mm') / self.steps:.1f} um, one per "
-                 f"{self.param('period_s'):g} s")
+        if self.commanded:
+            self.log(f"at {self.param('start_mm'):g} mm; commanded: one move per /actuator/command")
+        else:
+            self.log(f"at {self.param('start_mm'):g} mm; {self.steps} steps of "
+                     f"{1000 * self.param('travel_mm') / self.steps:.1f} um, one per "
+                     f"{self.param('period_s'):g} s")
         return True
 
     def on_biotac_status(self, msg: BiotacStatus):
@@ -223,6 +226,7 @@ class LinearActuator(Node):
             self._fault(f"command {msg.period}: {exc}")
             return
         self.last_period = msg.period
+        self.k += 1                   # moves done (the log at the end)
         self.state_pub.publish(ActuatorState(position_mm=position, step_index=msg.period, busy=False))
 
     def _move_at_speed(self, target_mm: float, during: str) -> float:
@@ -267,7 +271,8 @@ class LinearActuator(Node):
             self.log(f"linear_actuator: could not move back to start_mm: {exc}; the spring may be loaded")
 
     def _close(self):
-        self.log(f"steps done {self.k}/{self.steps}; serial {dict(self.client.stats)}")
+        done = f"moves done {self.k}" if self.commanded else f"steps done {self.k}/{self.steps}"
+        self.log(f"{done}; serial {dict(self.client.stats)}")
         close = getattr(self.client.port, "close", None)
         if close is not None:
             close()
