@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import stat
 import sys
 
 from incipient_slip.errors import EXIT_INTERRUPTED, EXIT_USAGE, UsageError
@@ -66,7 +67,9 @@ def main(argv: list[str] | None = None, modules: tuple[str, ...] = COMMAND_MODUL
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser(modules_for(argv, modules)).parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
+        sys.stdout.flush()            # here, not at exit: a closed pipe is then ours to handle
+        return code
     except UsageError as exc:
         print(f"{_where(args)}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -75,7 +78,10 @@ def main(argv: list[str] | None = None, modules: tuple[str, ...] = COMMAND_MODUL
     except BrokenPipeError:
         # `slip ... | head`: the reader went away; end quietly, like any Unix tool. (Not by
         # SIGPIPE's default action: a node killed by it leaves its announcement behind; the
-        # graph tools' nodes end themselves cleanly on it, topic_nodes.say.)
+        # graph tools' nodes end themselves cleanly on it, topic_nodes.say.) Only when stdout is
+        # a pipe: a broken socket to a device is an error to show.
+        if not stat.S_ISFIFO(os.fstat(sys.stdout.fileno()).st_mode):
+            raise
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_BROKEN_PIPE
 

@@ -6,6 +6,7 @@ registers) so that these tests do not depend on the other areas' sub-commands.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -181,7 +182,9 @@ def test_topic_echo_into_a_reader_that_leaves_ends_cleanly_and_withdraws_itself(
 
 @pytest.mark.timeout(30)
 def test_a_printing_command_into_a_reader_that_leaves_ends_without_a_traceback():
-    proc = subprocess.Popen(TOOLS + ["bag", "info", DEMO], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    # stdout block-buffered, as in a user's shell (the flush at exit once raised outside the handler)
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
+    proc = subprocess.Popen(TOOLS + ["bag", "info", DEMO], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
     proc.stdout.close()                           # gone before the first line
     assert proc.wait(timeout=30) == 141
     assert proc.stderr.read() == b""

@@ -91,6 +91,7 @@ def test_the_pzt_check_names_what_is_missing(monkeypatch):
     monkeypatch.setattr(pzt, "load_sounddevice", lambda: NoCard)
     line = pzt.check_output_device("USB Audio", 48000)
     assert "sound card USB Audio cannot play mono float32 at 48000 Hz" in line and "No output device" in line
+    assert (pzt.output_device(""), pzt.output_device("3"), pzt.output_device("USB Audio")) == (None, 3, "USB Audio")
 
 
 def test_rig_check_passes_when_the_emulated_devices_answer(tmp_path, graph):

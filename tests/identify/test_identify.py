@@ -180,6 +180,13 @@ def test_an_overlay_with_an_interval_the_rig_cannot_run_is_refused_in_one_line(e
         apply_overlay(load_params("default")[0], doc)
 
 
+def test_an_identified_mu_whose_interval_reaches_zero_is_refused():
+    """Two noisy levels give t95(1) = 12.7: a mu interval can reach below 0 on a real rig."""
+    mu = {"value": 0.5, "unit": "-", "source": "x", "interval": [-0.2, 1.2]}
+    with pytest.raises(SceneError, match=r"pla.mu_identified: interval .* \(must be > 0\)"):
+        apply_overlay(load_params("default")[0], {"provenance": {}, "materials": {"pla": {"mu_identified": mu}}})
+
+
 def test_launch_identify_recovers_hidden_parameters_through_the_graph(graph, tmp_path):
     """The same protocols through real processes and sockets: rig_sim (commanded, lock-step) and
     the identifier node; the scene file hides parameters other than the defaults."""

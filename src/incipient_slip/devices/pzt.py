@@ -138,12 +138,19 @@ def load_sounddevice():
     return sd
 
 
+def output_device(device: str) -> int | str | None:
+    """sounddevice's device argument from a launch arg: '' the default output (None), digits an
+    index (sounddevice searches a string as a name: ':=3' never found device 3), else a name."""
+    device = str(device).strip()
+    return None if not device else int(device) if device.isdigit() else device
+
+
 def check_output_device(device: str = "", fs_hz: int = 48000) -> str:
     """"" when sounddevice loads and `device` ('' = the default output) takes a mono float32
     stream at fs_hz, else the line naming what is wrong (rig_check's)."""
     try:
         sd = load_sounddevice()
-        sd.check_output_settings(device=device or None, channels=1, dtype="float32", samplerate=fs_hz)
+        sd.check_output_settings(device=output_device(device), channels=1, dtype="float32", samplerate=fs_hz)
     except RuntimeError as exc:
         return f"pzt: {exc}"
     except Exception as exc:     # sounddevice.PortAudioError, ValueError (no such device)
@@ -169,7 +176,7 @@ class SoundDeviceBackend:
             outdata[:, 0] = injector.block(frames)
 
         self.stream = sd.OutputStream(samplerate=fs_hz, blocksize=block, channels=1, dtype="float32",
-                                      device=device or None, callback=callback)
+                                      device=output_device(device), callback=callback)
         self.stream.start()
 
     def close(self) -> None:

@@ -54,9 +54,6 @@ def ensure_dataset(scene, n_series: int, seed: int, out_dir: Path, workers: int 
     todo = {d: v for d, v in todo.items() if not _reusable(v, n_series, seed, steps, d)}
     if not todo and _reusable(scene_obj, n_series, seed, steps, out_dir):
         return out_dir
-    for d in [out_dir, *todo]:
-        for stale in d.glob("series_*.npz"):   # from other physics or an interrupted run
-            stale.unlink()
     write_dataset(scene_obj, n_series, seed, out_dir, workers=workers, steps=steps,
                   progress=progress, views=todo)
     return out_dir

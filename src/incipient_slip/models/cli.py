@@ -89,7 +89,11 @@ def _train(args) -> int:
     check_scheduler(args.scheduler)
     if args.workers is not None:
         check_workers(args.workers)
+    from .dataset import read_meta
+    read_meta(args.data)                      # a wrong --data is named first
     out = args.out or runs_dir() / "models" / f"{args.method}.npz"
+    if out.is_dir():
+        raise ValueError(f"--out {out} is a directory; name the model file, e.g. {out / (args.method + '.npz')}")
     if out.exists() and not args.force:       # before the work, not after: no model is lost
         raise ValueError(f"{out} exists (a model trained before); --out elsewhere, or --force to replace it")
     spec = feature_spec(args.method, window_s=args.window_s)

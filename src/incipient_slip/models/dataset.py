@@ -114,14 +114,16 @@ def load_series(path: str | Path) -> Series:
         )
 
 
-def series_key(physics_fingerprint: str, material: str, seed: int) -> str:
-    """Who a series is across data sets: the same physics, material and seed simulate the same
-    series, so two data sets of one seed share series (a 20- and a 500-series set of seed 0 share
-    their first 20). A model's header lists its training series' keys; `slip evaluate` refuses
-    held-out series among them. "" when the series' seed is not stored."""
-    if seed < 0:
-        return ""
-    return hashlib.sha256(f"{physics_fingerprint}|{material}|{seed}".encode()).hexdigest()[:16]
+def series_key(s: Series) -> str:
+    """Who a series is across data sets, from what it holds: its material, seed and the object's
+    measured path and the normal force, so two data sets of one seed share series (a 20- and a
+    500-series set of seed 0 share their first 20) and a series of other physics is another one.
+    Not from the simulator's code version, which a change of a comment moves. A model's header
+    lists its training series' keys; `slip evaluate` refuses held-out series among them."""
+    h = hashlib.sha256(f"{s.material}|{s.seed}|".encode())
+    h.update(np.ascontiguousarray(s.mocap_y_mm).tobytes())
+    h.update(np.ascontiguousarray(s.normal_force_kpa).tobytes())
+    return h.hexdigest()[:16]
 
 
 def dataset_hash(data_dir: str | Path) -> str:

@@ -163,10 +163,10 @@ def _check_streams(data_dir, meta: dict, specs) -> None:
 def _series_windows(options: tuple, path) -> tuple:
     """Return (series index, its series_key, None) for a series without gross slip, else (series
     index, its key, one tuple of columns per spec, None where the spec keeps no window of it);
-    options: (specs, min_window_s, after_slip, label, the data set's physics fingerprint)."""
-    specs, min_window_s, after_slip, label, fingerprint = options
+    options: (specs, min_window_s, after_slip, label)."""
+    specs, min_window_s, after_slip, label = options
     s = ds.load_series(path)
-    key = ds.series_key(fingerprint, s.material, s.seed)
+    key = ds.series_key(s)
     lab = label_series(s)
     if lab.gross_slip_index < 0:
         return s.index, key, None
@@ -201,8 +201,7 @@ def _load_window_sets(data_dir, specs, min_window_s, progress: bool, after_slip:
     desc = f"phi {'+'.join(s.method for s in specs)} {Path(data_dir).name}"
     per_series = []
     with tqdm(total=len(paths), desc=desc, unit="series", disable=not progress, leave=False) as bar:
-        options = (specs, min_window_s, after_slip, label, ds.read_meta(data_dir).get("physics_fingerprint", ""))
-        for r in forked_map(_series_windows, paths, workers, options, chunksize=8):
+        for r in forked_map(_series_windows, paths, workers, (specs, min_window_s, after_slip, label), chunksize=8):
             per_series.append(r)
             bar.update()
     skipped = [index for index, _, parts in per_series if parts is None]

@@ -75,7 +75,7 @@ class GripController(Node):
 
     def on_estimate(self, msg: SlipEstimate) -> None:
         answers, warning = self.core.estimate(msg.period, msg.stick_ratio, msg.valid, msg.method, msg.reason)
-        if warning and not msg.valid and msg.reason == "filling":
+        if warning.endswith("estimate marked invalid (filling)"):
             # expected at the start of every run: the estimator's window is not full yet
             self.log(f"{warning}: the force holds until the estimator's window is full")
             warning = ""

@@ -33,7 +33,8 @@ def cmd_dataset(args) -> int:
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {out} exists and is not a directory")
     if out.is_dir() and any(out.glob("series_*.npz")) and not args.overwrite:
-        raise UsageError(f"--out {out} already holds a data set (series_*.npz); pass --overwrite or choose another directory")
+        what = "a data set" if (out / "meta.json").exists() else "an unfinished data set (no meta.json)"
+        raise UsageError(f"--out {out} already holds {what}; pass --overwrite or choose another directory")
     unknown = [m for m in (args.materials or []) if m not in scene.params["materials"]]
     if unknown:
         raise UsageError(f"unknown material(s) {', '.join(unknown)} (known: {', '.join(scene.params['materials'])})")

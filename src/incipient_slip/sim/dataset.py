@@ -162,6 +162,8 @@ def write_dataset(scene: Scene, n_series: int, seed: int, out_dir: str | Path, *
     for _, where in dirs:
         where.mkdir(parents=True, exist_ok=True)
         (where / "meta.json").unlink(missing_ok=True)     # complete again only when all is written
+        for stale in where.glob("series_*.npz"):         # another set's, or an interrupted run's
+            stale.unlink()
     out = Path(out_dir)
     jobs = [(scene, mats, seed, i, steps, str(out), views) for i in range(n_series)]
     if client is not None:

@@ -134,9 +134,9 @@ def overlay_entries(doc: dict, where: str = "overlay") -> dict[tuple, dict]:
     return out
 
 
-# units of quantities that are positive (stiffnesses, gains, forces): a value or an interval end
-# at or below 0 would simulate an impossible rig (a zero stiffness divides by zero). A lag (s) may
-# be 0: a slide in the period of the step
+# units of quantities that are positive (stiffnesses, gains, forces; and a material's identified
+# mu): a value or an interval end at or below 0 would simulate an impossible rig (a zero stiffness
+# divides by zero). A lag (s) may be 0: a slide in the period of the step
 POSITIVE_UNITS = ("N/mm", "N/kPa", "N")
 
 
@@ -144,7 +144,7 @@ def _check_interval(what: str, entry: dict) -> None:
     """An entry's value, and its interval when it has one ([low, high], finite, low <= value <=
     high; validation runs the rig at each end), positive where its unit says so."""
     v, interval = entry["value"], entry.get("interval")
-    positive = entry["unit"] in POSITIVE_UNITS
+    positive = entry["unit"] in POSITIVE_UNITS or what.endswith(".mu_identified")   # a friction coefficient too
     if positive and v <= 0:
         raise SceneError(f"{what} = {v!r} {entry['unit']}: must be > 0")
     if interval is None:
