@@ -474,18 +474,21 @@ def overlay(results: dict, protocol: str = "launch identify.yaml", date: str | N
                                 "inputs": {k: inp[k] for k in ("spring_n_per_mm", "spring_rel_sd", "newton_per_kpa",
                                                                "gain_rel_sd")}}}
 
-    def entry(value, unit, interval, what):
+    def entry(value, unit, interval, what, positive=False):
         out = {"value": float(value), "unit": unit, "source": f"{src}: {what}"}
-        if all(math.isfinite(v) for v in interval):
-            out["interval"] = [float(interval[0]), float(interval[1])]
-        else:       # e.g. two force levels fit exactly: no spread to bound it with
+        if not all(math.isfinite(v) for v in interval):    # e.g. two levels fit k_b exactly
             out["source"] += f"; no interval ({UNBOUNDED})"
+        elif positive and interval[0] <= 0:                # a noisy pair of levels: t95(1) = 12.7
+            out["source"] += f"; no interval (it reaches {interval[0]:.3g}: {UNBOUNDED})"
+        else:
+            out["interval"] = [float(interval[0]), float(interval[1])]
         return out
 
     pre, ss = {}, {}
     if "k_ref" in stiff:
         pre["bulk_shear_n_per_mm"] = entry(stiff["k_ref"], "N/mm", stiff["k_ref_interval"],
-                                           f"k_b at {stiff['ref_force_n']:g} N from {stiff['levels']} ramps")
+                                           f"k_b at {stiff['ref_force_n']:g} N from {stiff['levels']} ramps",
+                                           positive=True)
         pre["bulk_ref_force_n"] = {"value": float(stiff["ref_force_n"]), "unit": "N", "source": f"{src}: reference force"}
         pre["bulk_stiffening_exponent"] = entry(stiff["beta"], "-", stiff["beta_interval"], "log-log slope of k_b(F_N)")
     if lag:
@@ -503,7 +506,8 @@ def overlay(results: dict, protocol: str = "launch identify.yaml", date: str | N
     doc["stick_slip"] = ss
     if "mu" in stiff:
         doc["materials"] = {inp["material"]: {"mu_identified": entry(stiff["mu"], "-", stiff["mu_interval"],
-                                                                      f"Q/F_N at onset, {stiff['mu_levels']} levels")}}
+                                                                      f"Q/F_N at onset, {stiff['mu_levels']} levels",
+                                                                      positive=True)}}
     return doc
 
 
