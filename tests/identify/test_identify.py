@@ -256,16 +256,18 @@ def test_launch_identify_through_the_emulated_devices_recovers_one_hidden_set(gr
     doc = load_overlay(out / "identify_overlay.yaml")
     assert doc["provenance"]["rig"] == "emulated"
     # Through the real-time emulated devices the reads spread more than on the lock-step rig (the
-    # press loop's F_N ripple, the windows after each move): of 5 fresh-clone CI runs and 3 runs alone on 2026-11-26, one read
-    # k_b 0.452 for 0.58 (-22 %) and one mu 0.534 for 0.48 (+11 %), the others within 10 %; the
-    # cause of the k_b miss is not found (docs/identification.md, known limits). The bounds are
-    # that spread, not the lock-step tolerances.
-    assert doc["pre_slip"]["bulk_shear_n_per_mm"]["value"] == pytest.approx(0.58, rel=0.25)
-    assert doc["pre_slip"]["bulk_stiffening_exponent"]["value"] == pytest.approx(0.85, abs=0.15)
+    # press loop's F_N ripple, the windows after each move): of 5 fresh-clone CI runs and 3 runs
+    # alone on 2026-11-26, one read k_b 0.452 for 0.58 (-22 %) and one mu 0.534 for 0.48 (+11 %),
+    # the others within 10 %; the cause of the k_b miss is not found (docs/identification.md,
+    # known limits). The bounds are that spread, not the lock-step tolerances. On a miss the
+    # message carries the identifier's log, to find the cause.
+    log = "\n".join(line for line in stderr.decode().splitlines() if line.startswith(("[identifier]", "[ur5]")))
+    assert doc["pre_slip"]["bulk_shear_n_per_mm"]["value"] == pytest.approx(0.58, rel=0.25), log[-3000:]
+    assert doc["pre_slip"]["bulk_stiffening_exponent"]["value"] == pytest.approx(0.85, abs=0.15), log[-3000:]
     # mu: the identified interval must hold the truth, the value within 15 %
     mu = doc["materials"]["pla"]["mu_identified"]
-    assert mu["interval"][0] <= 0.48 <= mu["interval"][1], mu
-    assert mu["value"] == pytest.approx(0.48, rel=0.15)
+    assert mu["interval"][0] <= 0.48 <= mu["interval"][1], (mu, log[-3000:])
+    assert mu["value"] == pytest.approx(0.48, rel=0.15), log[-3000:]
 
 
 def test_an_overlay_reaches_every_command_that_takes_the_simulators_params(graph, tmp_path):
