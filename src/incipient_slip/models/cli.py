@@ -127,10 +127,8 @@ def _check_not_trained_on(path, model, ws, test_series, data, allow: bool) -> No
     seed share their series (dataset.series_key), so the split alone cannot tell."""
     trained = set(model.header.get("train_series_keys") or ())
     if not trained:
-        why = ("made before they were recorded" if "train_series_keys" not in model.header
-               else "its training data stored no series seeds")
-        print(f"note: {path} does not list its training series ({why}): whether {data} holds "
-              f"them is not checked", file=sys.stderr)
+        print(f"note: {path} does not list its training series (made before they were recorded): "
+              f"whether {data} holds them is not checked", file=sys.stderr)
         return
     seen = sorted(int(i) for i in test_series if ws.series_keys.get(int(i)) in trained)
     if not seen:

@@ -132,7 +132,6 @@ def load_window_sets(data_dir: str | Path, specs, min_window_s: float | None = N
                 f"{data_dir}: data set has injection={meta.get('injection')} but method "
                 f"{spec.method} needs injection={spec.injection} (scene 'paper' for injection, "
                 "'no_injection' for vibrotactile)")
-    _check_streams(data_dir, meta, specs)
     computed: list = []
 
     def compute() -> list[WindowSet]:
@@ -148,16 +147,16 @@ def load_window_sets(data_dir: str | Path, specs, min_window_s: float | None = N
             for i, spec in enumerate(specs)]
 
 
-def _check_streams(data_dir, meta: dict, specs) -> None:
-    """DatasetError when the data set's series hold none of a spec's stream (a scene without that
-    sensor, e.g. 'mechanics'), rather than the later 'no labelled windows'."""
+def _no_windows(data_dir, spec) -> ds.DatasetError:
+    """Why a data set gave `spec` no labelled window: its scene lacks the spec's sensor (e.g.
+    'mechanics' for e19), or no series slid. Read only on that error, off the loading path."""
     first = ds.load_series(ds.series_paths(data_dir)[0])
-    for spec in specs:
-        if (len(first.pac_counts) if spec.stream == "pac" else len(first.electrode_counts)) == 0:
-            what = "P_AC samples" if spec.stream == "pac" else "electrode samples"
-            raise ds.DatasetError(
-                f"{data_dir}: its series hold no {what}: scene {meta.get('scene')!r} does not "
-                f"simulate them, and method {spec.method} reads them (slip dataset --scene paper)")
+    if (len(first.pac_counts) if spec.stream == "pac" else len(first.electrode_counts)) == 0:
+        what = "P_AC samples" if spec.stream == "pac" else "electrode samples"
+        return ds.DatasetError(
+            f"{data_dir}: its series hold no {what}: scene {ds.read_meta(data_dir).get('scene')!r} "
+            f"does not simulate them, and method {spec.method} reads them (slip dataset --scene paper)")
+    return ds.DatasetError(f"{data_dir}: no labelled windows (no series with gross slip?)")
 
 
 def _series_windows(options: tuple, path) -> tuple:
@@ -211,7 +210,7 @@ def _load_window_sets(data_dir, specs, min_window_s, progress: bool, after_slip:
     for j, spec in enumerate(specs):
         parts = [p[j] for _, _, p in per_series if p is not None and p[j] is not None]
         if not parts:
-            raise ds.DatasetError(f"{data_dir}: no labelled windows (no series with gross slip?)")
+            raise _no_windows(data_dir, spec)
         cols = [np.concatenate(c) for c in zip(*parts)]
         cols[3] = cols[3].astype(str)
         out.append(WindowSet(*cols, spec=spec, data_hash=data_hash, skipped_series=list(skipped),
