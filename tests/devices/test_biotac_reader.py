@@ -147,15 +147,21 @@ def test_tare_on_request_sets_the_pdc_baseline(graph, tmp_path):
 
 def test_a_port_that_appears_after_the_start_is_one_info_line_and_one_that_never_does_is_warned(graph, tmp_path):
     """The emulated rig opens its pty a moment after the reader starts: that is one line, not a
-    warning per back-off; a port that is still missing after QUIET_START_S is a warning."""
+    warning per back-off; a port that is still missing after quiet_start_s is a warning. Each step
+    waits for the line that says it happened (a loaded machine only slows them)."""
     late = tmp_path / "late"
     probe = Probe(graph.dir)
     reader = graph.spawn(["python", "-m", "incipient_slip.nodes.biotac_reader", f"port:={late / 'biotac'}",
-                          "status_period_s:=0.05"])
+                          "status_period_s:=0.05", "quiet_start_s:=300"])
     never = graph.spawn(["python", "-m", "incipient_slip.nodes.biotac_reader", "__name:=never",
-                         f"port:={tmp_path / 'never'}", "status_period_s:=0.05"])
+                         f"port:={tmp_path / 'never'}", "status_period_s:=0.05", "quiet_start_s:=0.5"])
+    said = []
+    for raw in reader.stderr:                             # the reader tried, found no port, said so
+        said.append(raw.decode())
+        if "waiting up to" in said[-1]:
+            break
+    assert "waiting up to 300 s for the port to appear" in said[-1], said
     try:
-        time.sleep(1.0)                                # the reader has tried and backed off
         late.mkdir()
         emulator, _ = start_emulator(graph, late)
         probe.spin_until(lambda: len(probe.pac) >= 5, [emulator, reader])
@@ -169,6 +175,6 @@ def test_a_port_that_appears_after_the_start_is_one_info_line_and_one_that_never
     for proc in (reader, never):
         proc.terminate()
         assert proc.wait(10) == 0
-    said = reader.stderr.read().decode()
-    assert said.count("waiting up to") == 1 and "WARNING" not in said, said
+    said.append(reader.stderr.read().decode())
+    assert "".join(said).count("waiting up to") == 1 and "WARNING" not in "".join(said), said
     assert "".join(never_said).count("waiting up to") == 1 and "WARNING: cannot open" in never_said[-1], never_said

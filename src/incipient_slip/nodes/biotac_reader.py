@@ -28,8 +28,6 @@ from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.messages import BiotacPac, BiotacSlow, BiotacStatus, BiotacTare, Heartbeat
 
-QUIET_START_S = 5.0    # link failures before the first connection within this are one info line
-
 
 class BiotacReader(Node):
     """Reads one BioTac through the bridge; publishes its frames and its fault counters."""
@@ -38,6 +36,8 @@ class BiotacReader(Node):
         "backend": Param("bridge", choices=("bridge", "cheetah"),
                          help="USB bridge on a serial port, or a Total Phase Cheetah (needs cheetah_py)"),
         "port": Param("", help="serial port of the bridge (e.g. /dev/ttyACM0 or an emulator's link)"),
+        "quiet_start_s": Param(5.0, lo=0.0, hi=600.0, help="a port that cannot be opened before the first "
+                               "connection within this is one info line, not a warning per back-off"),
         "n_biotacs": Param(1, lo=1, hi=bt.MAX_BIOTACS, help="sensors on the Cheetah's bus (cheetah backend)"),
         "cheetah_port": Param(-1, lo=-1, hi=127, help="Cheetah adapter port (-1: the first free one)"),
         "sensor": Param(0, lo=0, hi=bt.MAX_BIOTACS - 1, help="which sensor of the bridge (chip select 0..4)"),
@@ -98,9 +98,9 @@ class BiotacReader(Node):
 
     def _quiet_start(self) -> bool:
         """Whether a port that cannot be opened is still part of the start: no connection yet,
-        and less than QUIET_START_S since ours (an emulated rig started beside us opens its ports
+        and less than quiet_start_s since ours (an emulated rig started beside us opens its ports
         a moment after; a wrong port on the real rig is warned about, every attempt, after that)."""
-        return self.link.connections == 0 and time.monotonic() - self.started < QUIET_START_S
+        return self.link.connections == 0 and time.monotonic() - self.started < self.param("quiet_start_s")
 
     def on_tare(self, msg: BiotacTare) -> None:
         self.tare.frames = int(round(msg.duration_s * bt.FRAME_RATE_HZ))
@@ -118,7 +118,7 @@ class BiotacReader(Node):
             if level == "absent" and self._quiet_start():
                 if not self.said_waiting:       # one line, not one warning per back-off
                     self.said_waiting = True
-                    self.log(f"waiting up to {QUIET_START_S:g} s for the port to appear ({text})")
+                    self.log(f"waiting up to {self.param('quiet_start_s'):g} s for the port to appear ({text})")
                 continue
             self.log(text) if level == "info" else self.warn(text)
         self.link.events.clear()
