@@ -25,6 +25,7 @@ import numpy as np
 from incipient_slip import control
 from incipient_slip.errors import UsageError
 
+from . import closed_loop as loop
 from .plots import METHOD_LABELS, pyplot, save
 from .settings import Settings
 
@@ -70,26 +71,9 @@ def slip_force_stats(material: str, data_dir: Path) -> dict:
             "fn_at_slip_median_kpa": float(np.median(fn)), "k_slip_median": float(np.median(k))}
 
 
-class Windows:
-    """The estimator node's 1.0 s window: the last two periods' raw streams."""
-
-    def __init__(self):
-        self.prev = None
-
-    def push(self, out):
-        """Return (previous, this) period once two are in, else None (the window is filling)."""
-        cur = out
-        pair = (self.prev, cur) if self.prev is not None else None
-        self.prev = cur
-        return pair
-
-    @staticmethod
-    def window(pair, model):
-        """Return the raw stream of the window (P_AC or electrodes, by the model's spec)."""
-        a, b = pair
-        if model.spec.stream == "pac":
-            return np.concatenate([a.pac_counts, b.pac_counts])
-        return np.concatenate([a.electrode_counts, b.electrode_counts])
+def _estimates(models: dict, use) -> dict:
+    """The estimator node's answer of each model in `use` for a window (`closed_loop.model_estimate`)."""
+    return {m: loop.model_estimate(models[m]) for m in use}
 
 
 def record(out, ests: dict, ft_slip: float, state=None) -> dict:
@@ -105,29 +89,24 @@ def record(out, ests: dict, ft_slip: float, state=None) -> dict:
 
 def closed_loop(method: str, material: str, seed: int, models: dict, ft_slip: float,
                 steps: int = 450, oracle: bool = False) -> list[dict]:
-    """Return the per-period records of one run of the paper's law, driven by `method`'s
-    estimate or (oracle) by the simulator's true load ratio."""
-    from incipient_slip.models.estimator_core import estimate_window
+    """Return the per-period records of one run of the paper's law (`closed_loop.run_loop`), driven
+    by `method`'s estimate or (oracle) by the simulator's true load ratio; the oracle's records
+    carry every model's estimate of its windows."""
     from incipient_slip.sim.rig import Rig
     from incipient_slip.sim.scene import load_scene
-    scene = load_scene("paper" if oracle else SCENE_OF[method])
-    rig = Rig(scene, material, seed)
-    params = control.ControlParams()
-    fn, win, rows = control.DEFAULT_INITIAL_FORCE_KPA, Windows(), []
-    use = METHODS if oracle else (method,)
-    for _ in range(steps):
-        out = rig.step_period(fn)
-        pair = win.push(out)
-        ests = {m: (estimate_window(models[m], Windows.window(pair, models[m])) if pair else np.nan)
-                for m in use}
-        rows.append(record(out, ests, ft_slip, rig.state))
-        drive = out.load_ratio_stick if oracle else ests[method]
-        fn = control.next_force(fn, drive, params, problem="" if np.isfinite(drive) else "filling").normal_force_kpa
-        verdict = control.judge_step(len(rows), out.object_y_mm, fn, 0, control.SupervisorRules(max_steps=steps))
-        if verdict.ended:          # the paper's protocol: the F_N limit, or the end state after all steps
-            rows[-1]["end"] = ("F_N at 6.0 kPa" if fn >= control.SAFETY_LIMIT_KPA - 1e-9 else
-                               "y > 1.5 mm at the end" if out.object_y_mm > control.FAILURE_TRAVEL_MM else "held")
-            break
+    rig = Rig(load_scene("paper" if oracle else SCENE_OF[method]), material, seed)
+    ests = _estimates(models, METHODS if oracle else (method,))
+    drive = loop.true_ratio if oracle else ests[method]
+    rows, prev = [], None
+    for period in loop.run_loop(rig, drive, rules=control.SupervisorRules(max_steps=steps)):
+        out = period.out
+        rows.append(record(out, {m: (period.estimate if not oracle and m == method else e(prev, out))
+                                 for m, e in ests.items()}, ft_slip, rig.state))
+        prev = out
+    if period.verdict.ended:      # the paper's protocol: the F_N limit, or the end state after all steps
+        fn = period.command_kpa
+        rows[-1]["end"] = ("F_N at 6.0 kPa" if fn >= control.SAFETY_LIMIT_KPA - 1e-9 else
+                           "y > 1.5 mm at the end" if period.travel_mm > control.FAILURE_TRAVEL_MM else "held")
     return rows
 
 
@@ -135,22 +114,19 @@ def force_step(material: str, seed: int, models: dict, ft_slip: float, target_tr
                n_hold: int = 6, max_load: int = 300) -> list[dict]:
     """Load the spring at 2 kPa until the true ratio falls below target_true, then hold the
     actuator: n_hold periods at 2 kPa, n_hold at 5 kPa (both models, scene paper)."""
-    from incipient_slip.models.estimator_core import estimate_window
     from incipient_slip.sim.rig import Rig
     from incipient_slip.sim.scene import load_scene
     rig = Rig(load_scene("paper"), material, seed)
-    win, rows = Windows(), []
+    ests, rows = _estimates(models, METHODS), []
     for _ in range(max_load):
-        out = rig.step_period(2.0)
-        win.push(out)
-        if out.load_ratio_stick < target_true:
+        prev = rig.step_period(2.0)
+        if prev.load_ratio_stick < target_true:
             break
     for phase, fn in (("2 kPa", 2.0), ("5 kPa", 5.0)):
         for _ in range(n_hold):
             out = rig.step_period(fn, actuator_step=False)
-            pair = win.push(out)
-            ests = {m: estimate_window(models[m], Windows.window(pair, models[m])) for m in METHODS}
-            rows.append({**record(out, ests, ft_slip), "phase": phase})
+            rows.append({**record(out, {m: e(prev, out) for m, e in ests.items()}, ft_slip), "phase": phase})
+            prev = out
     return rows
 
 

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 import time
 from pathlib import Path
 
@@ -28,6 +27,7 @@ from incipient_slip import control
 from incipient_slip.cluster import check_scheduler, open_client
 
 from . import calibration as cal
+from . import closed_loop as loop
 from .timing import duration
 
 NAME = "validation"
@@ -114,48 +114,30 @@ def _loaded_scene(name: str):
     return load_scene(name)
 
 
-def _window(prev, cur, stream: str) -> np.ndarray:
-    if stream == "pac":
-        return np.concatenate([prev.pac_counts, cur.pac_counts])
-    return np.concatenate([prev.electrode_counts, cur.electrode_counts])
-
-
 def closed_loop(method: str, params: dict, material: str, seed: int, model, steps: int,
                 s_d: float = control.DEFAULT_TARGET_STICK_RATIO, trace: list | None = None,
                 stop_on_travel: bool = False) -> dict:
     """Return one run's outcome: the grip law on `method`'s estimate (or on the true ratio for
     'oracle', or no action for 'none') on the simulated rig with `params`, judged by the
-    supervisor's own rules (control.judge_step: the paper's protocol by default)."""
+    supervisor's own rules (the paper's protocol by default); `closed_loop.run_loop` runs it."""
     from incipient_slip.sim.rig import Rig
-    from incipient_slip.models.estimator_core import estimate_window
 
     rig = Rig(_scene(SCENE_OF[method], params), material, seed)
-    cp = control.ControlParams(target_stick_ratio=s_d)
+    estimate = (None if method == "none" else loop.true_ratio if method == "oracle"
+                else loop.model_estimate(model))
     rules = control.SupervisorRules(max_steps=steps, end_on_failure=method != "none", stop_on_travel=stop_on_travel)
-    fn = control.DEFAULT_INITIAL_FORCE_KPA
-    prev, out, verdict, k, slid = None, None, control.Verdict(), 0, False
-    for k in range(1, steps + 1):
-        out = rig.step_period(fn)
+    slid = False
+    for period in loop.run_loop(rig, estimate, control.ControlParams(target_stick_ratio=s_d), rules):
+        out = period.out
         slid = slid or out.gross_slip
-        if method == "oracle":
-            s = out.load_ratio_stick
-        elif method != "none" and prev is not None:
-            s = estimate_window(model, _window(prev, out, model.spec.stream))
-        else:
-            s = math.nan
-        prev = out
         if trace is not None:
-            trace.append({"y": out.object_y_mm, "fn": fn, "est": s, "true": out.load_ratio_stick,
-                          "sar": out.stick_area_ratio})
-        if method != "none":
-            fn = control.next_force(fn, s, cp, problem="" if math.isfinite(s) else "filling").normal_force_kpa
-        verdict = control.judge_step(k, out.object_y_mm, fn, 0, rules)
-        if verdict.ended:
-            break
+            trace.append({"y": out.object_y_mm, "fn": period.force_kpa, "est": period.estimate,
+                          "true": out.load_ratio_stick, "sar": out.stick_area_ratio})
+    fn, verdict = period.command_kpa, period.verdict
     failed = "" if verdict.kind == "success" else ("F_N" if fn >= control.SAFETY_LIMIT_KPA - 1e-9
-                                                   else "y" if out.object_y_mm > control.FAILURE_TRAVEL_MM else "")
+                                                   else "y" if period.travel_mm > control.FAILURE_TRAVEL_MM else "")
     return {"success": verdict.kind == "success" if method != "none" else None, "end": failed or "steps",
-            "y": float(out.object_y_mm), "fn": float(fn), "steps": k, "material": material,
+            "y": period.travel_mm, "fn": float(fn), "steps": period.step, "material": material,
             "slide_mm": float(rig.state.anchor_mm), "slid": bool(slid)}
 
 
