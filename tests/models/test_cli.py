@@ -92,3 +92,27 @@ def test_train_refuses_to_replace_a_model_without_force(fake_injection_dir, tmp_
     assert run(["train", "--method", "e1", "--data", str(fake_injection_dir), "--quick", "--out", str(out),
                 "--kind", "linear", "--force"]) == 0
     assert out.read_bytes() != before
+
+
+def test_train_with_the_measured_ratio_label_records_it_and_its_lag(fake_injection_dir, tmp_path, capsys):
+    from incipient_slip.models.modelfile import read_model_file
+    overlay = tmp_path / "identify_overlay.yaml"
+    overlay.write_text("stick_slip:\n  friction_limit_lag_s: {value: 0.5, unit: s}\n")
+    out = tmp_path / "e4.npz"
+    assert run(["train", "--method", "e4", "--data", str(fake_injection_dir), "--quick", "--label",
+                "measured-ratio", "--params", str(overlay), "--out", str(out)]) == 0
+    assert "label measured-ratio (friction lag 0.5 s)" in capsys.readouterr().out
+    header = read_model_file(out).header
+    assert header["label"] == "measured-ratio" and header["friction_lag_s"] == 0.5
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["--friction-lag-s", "0.5"], "inputs of --label measured-ratio"),
+    (["--label", "measured-ratio", "--friction-lag-s", "-1"], ">= 0"),
+    (["--label", "measured-ratio", "--params", "/nonexistent/overlay.yaml"], "cannot read the overlay"),
+])
+def test_train_names_a_bad_label_input_and_exits_2(fake_injection_dir, tmp_path, capsys, argv, says):
+    assert run(["train", "--method", "e4", "--data", str(fake_injection_dir), "--quick",
+                "--out", str(tmp_path / "m.npz"), *argv]) == 2
+    err = capsys.readouterr().err
+    assert says in err and "Traceback" not in err

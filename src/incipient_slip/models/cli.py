@@ -13,6 +13,7 @@ from pathlib import Path
 from incipient_slip.errors import UsageError
 
 from .features import METHODS
+from .labels import LABELS, LabelRule, rule_of_header
 
 def _user_errors():
     from .dataset import DatasetError
@@ -36,10 +37,21 @@ def register(subparsers) -> None:
     p.add_argument("--components", type=int, default=1000, help="Nystroem landmarks (default 1000)")
     p.add_argument("--window-s", type=float, default=1.0, help="window T in seconds (default 1.0)")
     p.add_argument("--after-slip", default="zero", choices=("zero", "drop"),
-                   help="windows after gross slip: label 0 (paper) or leave out")
-    p.add_argument("--label", default="pseudo", choices=("pseudo", "true-ratio"),
-                   help="training target: the paper's pseudo-stick ratio (default) or, as an "
-                   "EXTENSION (not the paper's method), the simulator's true load_ratio_stick")
+                   help="windows after the first gross slip: kept (the pseudo label gives them 0, "
+                   "the paper's rule; measured-ratio their own ratio) or left out")
+    p.add_argument("--label", default="pseudo", choices=LABELS,
+                   help="training target: pseudo, the paper's pseudo-stick ratio (default; F_T^slip "
+                   "of the first onset); measured-ratio, 1 - F_T / (mu F_N) with mu the largest "
+                   "load ratio the series held, consistent with F_N redrawn every period "
+                   "(docs/estimation.md); true-ratio, an EXTENSION (not the paper's method): the "
+                   "simulator's true load_ratio_stick")
+    lag = p.add_mutually_exclusive_group()
+    lag.add_argument("--friction-lag-s", type=float, metavar="S",
+                     help="measured-ratio: the friction limit's lag behind F_N in s (default 0: it "
+                     "follows F_N at once)")
+    lag.add_argument("--params", type=Path, metavar="OVERLAY",
+                     help="measured-ratio: take the friction lag an identified rig measured "
+                     "(stick_slip.friction_limit_lag_s of launch identify.yaml's overlay)")
     p.add_argument("--quick", action="store_true", help="small grid")
     p.add_argument("--workers", type=int, help="run the grid search's candidate fits as dask tasks on a "
                    "LocalCluster of this many processes (default: in this process)")
@@ -96,8 +108,9 @@ def _train(args) -> int:
         raise ValueError(f"--out {out} is a directory; name the model file, e.g. {out / (args.method + '.npz')}")
     if out.exists() and not args.force:       # before the work, not after: no model is lost
         raise ValueError(f"{out} exists (a model trained before); --out elsewhere, or --force to replace it")
+    rule = _label_rule(args)
     spec = feature_spec(args.method, window_s=args.window_s)
-    ws = load_windows(args.data, spec, after_slip=args.after_slip, label=args.label)
+    ws = load_windows(args.data, spec, after_slip=args.after_slip, label=rule)
     test_series = held_out_series(ws.series_materials())
     train, test = split_train_test(ws, test_series)
     kw = dict(max_train=args.max_train, grid_max=args.grid_max, n_components=args.components, quick=args.quick)
@@ -108,14 +121,39 @@ def _train(args) -> int:
         res = train_model(train, args.kind, **kw)
     sc = series_scores(args.method, test.y, res.model.predict(test.X), test.series, test.material)
     res.model.header.update(test_series=[int(v) for v in test_series], after_slip=args.after_slip,
-                            label=args.label, test_rmse_mean=float(sc.rmse.mean()))
+                            label=rule.name, friction_lag_s=rule.friction_lag_s, test_rmse_mean=float(sc.rmse.mean()))
     save_model(res.model, out)
     s = sc.summary()
     print(f"{args.method}: {args.kind} {res.report.get('params')} on {res.report.get('n_fit')} of "
           f"{res.report['n_windows']} windows in {res.report['train_s']:.1f} s; held-out "
           f"{s['n_series']} series: RMSE {s['rmse_mean']:.3f} ± {s['rmse_std']:.3f}, "
-          f"top-10 % RMSE {s['top10_mean']:.3f}; wrote {out}")
+          f"top-10 % RMSE {s['top10_mean']:.3f} (label {rule}); wrote {out}")
     return 0
+
+
+def _label_rule(args) -> LabelRule:
+    """The label of `slip train`: --label, with the friction lag of --friction-lag-s or --params."""
+    lag = args.friction_lag_s
+    if args.params is not None:
+        lag = friction_lag_of_overlay(args.params)
+    if lag is not None and args.label != "measured-ratio":
+        raise ValueError(f"--friction-lag-s and --params are inputs of --label measured-ratio, not {args.label}")
+    return LabelRule(args.label, float(lag or 0.0))
+
+
+def friction_lag_of_overlay(path: Path) -> float:
+    """Return stick_slip.friction_limit_lag_s of an identified rig's params overlay (seconds)."""
+    import yaml
+    try:
+        doc = yaml.safe_load(Path(path).read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise ValueError(f"--params {path}: cannot read the overlay ({exc})") from None
+    entry = ((doc or {}).get("stick_slip") or {}).get("friction_limit_lag_s") if isinstance(doc, dict) else None
+    value = entry.get("value") if isinstance(entry, dict) else entry
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        raise ValueError(f"--params {path}: no stick_slip.friction_limit_lag_s value (the lag protocol of "
+                         "launch identify.yaml measures it); give --friction-lag-s instead")
+    return float(value)
 
 
 def cmd_evaluate(args) -> int:
@@ -158,7 +196,7 @@ def _evaluate(args) -> int:
                 raise ValueError(f"{path}: a vibrotactile model needs --data-no-injection")
             data = args.data_no_injection
         ws = load_windows(data, model.spec, after_slip=model.header.get("after_slip", "zero"),
-                          label=model.header.get("label", "pseudo"))
+                          label=rule_of_header(model.header))
         if test_series is None:
             test_series = held_out_series(ws.series_materials())
         _check_not_trained_on(path, model, ws, test_series, data, args.allow_train_overlap)

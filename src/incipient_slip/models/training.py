@@ -28,7 +28,7 @@ from tqdm import tqdm
 from ..cluster import map_tasks
 from . import dataset as ds
 from .features import FeatureSpec, series_feature_sets, valid_window_mask
-from .labels import LABELS, label_series, training_labels
+from .labels import label_rule, label_series, training_labels
 from .modelfile import Model, rbf_of_dot
 
 SPLIT_SEED = 20240917
@@ -106,8 +106,9 @@ def load_windows(data_dir: str | Path, spec: FeatureSpec, min_window_s: float | 
     (used to compare different T on the same samples).
     after_slip: "zero" keeps the windows after gross slip with label 0 (the paper's rule);
     "drop" keeps windows up to and including the gross-slip onset only (incipient slip range).
-    label: "pseudo" (the paper's rule) or "true-ratio" (EXTENSION: the simulator's
-    load_ratio_stick, see labels.training_labels); the windows kept are the same for both.
+    label: a name of `labels.LABELS` or a `labels.LabelRule`: "pseudo" (the paper's rule),
+    "measured-ratio" (measured quantities under the per-period F_N redraw) or "true-ratio"
+    (EXTENSION: the simulator's load_ratio_stick); the windows kept are the same for all.
     With a cache on (`incipient_slip.cache`) the windows are stored under a key of the data set's
     content hash, the spec, these options and the code of models/, and read back next time.
     """
@@ -120,8 +121,7 @@ def load_window_sets(data_dir: str | Path, specs, min_window_s: float | None = N
 
     workers: read the series in this many forked processes (1: in process); the windows are
     the same, in series order, wherever they were computed."""
-    if label not in LABELS:
-        raise ValueError(f"label {label!r} unknown; expected one of {', '.join(LABELS)}")
+    label = label_rule(label)                       # a name or a LabelRule; ValueError names a bad one
     if after_slip not in AFTER_SLIP:
         raise ValueError(f"after_slip {after_slip!r} unknown; expected one of {AFTER_SLIP}")
     specs = list(specs)
@@ -143,7 +143,7 @@ def load_window_sets(data_dir: str | Path, specs, min_window_s: float | None = N
         return compute()
     data_hash, code = ds.dataset_hash(data_dir), cache.source_version(Path(__file__).parent)
     return [cache.cached("windows", cache.digest("windows-1", data_hash, repr(spec), min_window_s, after_slip,
-                                                 label, code), lambda i=i: compute()[i])
+                                                 repr(label), code), lambda i=i: compute()[i])
             for i, spec in enumerate(specs)]
 
 
