@@ -19,7 +19,7 @@ import pytest
 
 from incipient_slip import control
 from incipient_slip.experiments import closed_loop as loop
-from incipient_slip.models.estimator_core import load_model
+from incipient_slip.models.estimator_core import default_model_path, load_model
 from incipient_slip.sim.rig import Rig
 from incipient_slip.sim.scene import load_scene
 
@@ -27,10 +27,10 @@ STABILIZE = Path(__file__).parents[2] / "launch" / "stabilize.yaml"
 STEPS, SEED = 12, 3
 
 
-def graph_run(tmp_path: Path, method: str) -> dict:
+def graph_run(tmp_path: Path, method: str, label: str) -> dict:
     summary = tmp_path / f"{method}.json"
     done = subprocess.run([sys.executable, "-m", "incipient_slip.graph.launch", str(STABILIZE),
-                           f"method:={method}", f"steps:={STEPS}", f"seed:={SEED}", "quiet:=true",
+                           f"method:={method}", f"label:={label}", f"steps:={STEPS}", f"seed:={SEED}", "quiet:=true",
                            f"summary:={summary}", "--graph", f"loop-{method}"],
                           env={k: v for k, v in os.environ.items() if k != "SLIP_GRAPH_DIR"},
                           capture_output=True, text=True, timeout=300)
@@ -42,12 +42,13 @@ def same(a: float, b: float) -> bool:
     return (math.isnan(a) and math.isnan(b)) or a == pytest.approx(b, rel=1e-9, abs=1e-12)
 
 
-@pytest.mark.parametrize("method", ["injection", "e10"])
-def test_the_in_process_loop_gives_the_graphs_per_period_trace(tmp_path, method):
-    summary = graph_run(tmp_path, method)
+@pytest.mark.parametrize("method, label", [("injection", "measured-ratio"), ("e10", "pseudo")])
+def test_the_in_process_loop_gives_the_graphs_per_period_trace(tmp_path, method, label):
+    summary = graph_run(tmp_path, method, label)
     scene = load_scene(control.SCENE_OF_METHOD[method])
     rig = Rig(scene, scene.materials[0], SEED)
-    periods = list(loop.run_loop(rig, loop.model_estimate(load_model(method=method)),
+    model = load_model(default_model_path(method, label), method=method)
+    periods = list(loop.run_loop(rig, loop.model_estimate(model),
                                  rules=control.SupervisorRules(max_steps=STEPS)))
     tr = summary["traces"]
     assert tr["step"] == [p.step for p in periods] == list(range(1, STEPS + 1))

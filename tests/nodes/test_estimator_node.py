@@ -255,3 +255,23 @@ def test_period_origin_tick_cuts_host_time_stamps_at_the_actuators_ticks(estimat
     assert [e.stamp_ns for e in est] == [host + (k + 1) * PERIOD_NS for k in range(len(est))]
     for e in est[1:]:
         assert e.valid and e.stick_ratio == pytest.approx(expected_ratio(model, stream, e.period), abs=1e-9)
+
+
+def test_a_model_of_another_label_than_label_asks_is_a_clear_error(graph, tmp_path, capsys):
+    model = make_model(tmp_path / "m.npz", "injection", 1.0)
+    model.header.update(label="pseudo")
+    save_model(model, tmp_path / "m.npz")
+    assert run_node(Estimator, [f"model:={tmp_path / 'm.npz'}", "label:=measured-ratio"]) == 2
+    err = capsys.readouterr().err
+    assert "trained on label 'pseudo'" in err and "measured-ratio" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("label", ["pseudo", "measured-ratio"])
+def test_every_shipped_model_of_a_label_names_that_label(label):
+    from incipient_slip.models.estimator_core import default_model_path, load_model
+    from incipient_slip.models.features import METHODS
+    from incipient_slip.models.labels import rule_of_header
+    for method in METHODS:
+        path = default_model_path(method, label)
+        assert path.is_file(), path
+        assert rule_of_header(load_model(path, method=method).header).name == label

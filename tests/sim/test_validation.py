@@ -56,6 +56,34 @@ def test_summary_and_render_label_the_simulated_rig():
     assert "| success rate, paper | – | 0.3 | 0.0 | 0.1 | 1.0 | 0.8 | 1.0 |" in blocks["validation-fitted"]
 
 
+def test_the_answer_has_a_row_per_label_and_counts_each_label_on_its_own_points():
+    held = val.summarize([{"success": True, "end": "steps", "y": 1.0, "fn": 4.0, "steps": 450, "material": "pla"}])
+    lost = val.summarize([{"success": False, "end": "F_N", "y": 0.5, "fn": 6.0, "steps": 300, "material": "pla"}])
+    bias = [{"bin": "1.1-2 kPa", "mean": -0.01, "sd": 0.01, "n": 9}]
+    point = {"table": {m: held if m == "oracle" else lost for m in val.TABLE_METHODS + ("oracle",)},
+             "consistent": True, "fit": {},
+             "labels": {"pseudo": {"label_error_by_fn": [{"bin": "1.1-2 kPa", "mean": -0.12, "sd": 0.1, "n": 9}],
+                                   "rmse": {"injection": 0.1}, "rmse_truth": {"injection": 0.4}},
+                        "measured-ratio": {"label_error_by_fn": bias, "rmse": {"injection": 0.15},
+                                           "rmse_truth": {"injection": 0.16},
+                                           "table": {m: held for m in val.LABEL_METHODS}}}}
+    text = val.render_answer({"runs": 10, "steps": 450, "points": {"fitted": point, "lag 1 s": point}})
+    assert "| lag 1 s | pseudo | 1.0 | 0.0 | 0.0 | 0.0 | 1.1-2 kPa -0.12 |" in text
+    assert "| lag 1 s | measured-ratio | 1.0 | 1.0 | 1.0 | 1.0 | 1.1-2 kPa -0.01 |" in text
+    assert "injection (pseudo) holds (success >= 0.8) at 0 of 2 points" in text
+    assert "injection (measured-ratio) holds (success >= 0.8) at 2 of 2 points" in text
+    assert "With the measured-ratio label: injection 1.0" in text
+    assert "injection 0.150 / 0.160" in text
+
+
+def test_a_point_with_a_friction_lag_also_runs_the_label_with_that_lag_identified():
+    params = load_scene("paper").params
+    assert list(val.label_rows(params)) == ["pseudo", "measured-ratio"]
+    lagged = {**params, "stick_slip": {**params["stick_slip"], "friction_limit_lag_s": 0.5}}
+    rows = val.label_rows(lagged)
+    assert rows["measured-ratio, lag identified"].friction_lag_s == 0.5
+
+
 @pytest.mark.parametrize("opts, needle", [({"runs": 0}, "--runs"), ({"scheduler": "localhost:8786"}, "--scheduler"),
                                           ({"sweep_at": ["beta 7, lag 0, mu spread 1"]}, "not a point of the joint set"),
                                           ({"sweep_at": ["beta 1, lag 1, mu spread 0.7"]}, "needs the joint results")])

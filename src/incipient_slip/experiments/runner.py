@@ -49,19 +49,21 @@ class RunSpec:
     tag: str = "table"
     summary_path: Path = Path()
     log_path: Path = Path()
-    model: str = ""          # estimator model file ("" = the shipped models/<method>.npz)
+    model: str = ""          # estimator model file ("" = the shipped model of `label`)
+    label: str = "pseudo"    # the training label of the shipped model (launch label:=)
 
     def launch_args(self) -> dict[str, str]:
         args = {"method": self.method, "seed": str(self.seed), "material": self.material,
                 "s_d": repr(float(self.s_d)), "k": repr(float(self.k)), "steps": str(self.steps),
-                "summary": str(self.summary_path), "quiet": "true"}
+                "summary": str(self.summary_path), "quiet": "true", "label": self.label}
         if self.model:
             args["model"] = self.model
         return args
 
     @property
     def name(self) -> str:
-        return f"{self.tag}-{self.method}-sd{self.s_d:g}-k{self.k:g}-{self.material}-s{self.seed}"
+        label = "" if self.label == "pseudo" else f"-{self.label}"
+        return f"{self.tag}-{self.method}{label}-sd{self.s_d:g}-k{self.k:g}-{self.material}-s{self.seed}"
 
 
 @dataclass

@@ -32,6 +32,11 @@ RESULTS = "stab_results.json"       # in docs/figures/: the page's numbers, for 
 QUICK = ("2 runs per method (full 10), each the full 450 steps through the same node "
          "graph, so every run ends as a full run with its seed would; success rates are out of 2")
 
+# the labels of the shipped models (models/<method>.npz, models/measured-ratio/<method>.npz)
+LABELS = ("pseudo", "measured-ratio")
+# the methods the other labels run (the paper's injection and its two best electrode columns; every
+# method in `slip reproduce all` would push it past 10 minutes on 2 cores)
+LABEL_METHODS = ("e10", "e19", "injection")
 # the paper's column order
 TABLE_METHODS = ("none", "vibrotactile", "e1", "e4", "e10", "e19", "injection")
 # the paper's Table (y and F_N at the last step; None where the paper gives none)
@@ -61,6 +66,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--tune-k", metavar="K1,K2,...", help="first run injection over these gains")
     parser.add_argument("--start", choices=("fork", "exec"), default="fork",
                         help="fork nodes from a pre-imported parent (default) or exec the launch command")
+    parser.add_argument("--labels", nargs="+", choices=LABELS, default=list(LABELS),
+                        help="the training labels whose shipped models run the Table (default both: the "
+                        "paper's pseudo label is the Table, measured-ratio rows for E10, E19 and injection "
+                        "beside it; docs/estimation.md)")
     parser.add_argument("--model", type=Path, metavar="FILE",
                         help="EXTENSION: run only the one --methods method with FILE in its "
                         "estimator; kept apart from the Table (block stabilization-extension)")
@@ -275,13 +284,13 @@ def materials() -> tuple[str, ...]:
 
 
 def make_specs(methods, runs: int, s_d: float, k: float, steps: int, work: Path, tag: str,
-               model: str = "") -> list[RunSpec]:
+               model: str = "", label: str = "pseudo") -> list[RunSpec]:
     """Return the runs; run i of every method uses seed i and material i mod n: same rigs."""
     mats = materials()
     specs = []
     for m in methods:
         for i in range(runs):
-            spec = RunSpec(m, i, mats[i % len(mats)], s_d, k, steps, tag, model=model)
+            spec = RunSpec(m, i, mats[i % len(mats)], s_d, k, steps, tag, model=model, label=label)
             spec.summary_path = work / f"{spec.name}.json"
             spec.log_path = work / f"{spec.name}.log"
             specs.append(spec)
@@ -338,9 +347,24 @@ def run(settings: Settings) -> dict:
                              "wall_s": round(time.monotonic() - t0, 1)}
         t0 = time.monotonic()
 
-    specs = make_specs(c["methods"], c["runs"], c["s_d"], c["k"], c["steps"], work / "table", "table")
-    summaries = runner.run(specs, _progress(len(specs), t0, settings.progress))
+    labels = list(settings.option("labels", LABELS))
+    other = [label for label in labels if label != "pseudo"]
+    specs = (make_specs(c["methods"], c["runs"], c["s_d"], c["k"], c["steps"], work / "table", "table")
+             if "pseudo" in labels else [])
+    specs += [s for label in other for s in make_specs([m for m in c["methods"] if m in LABEL_METHODS], c["runs"], c["s_d"],
+                                                      c["k"], c["steps"], work / "table", "table", label=label)]
+    done = runner.run(specs, _progress(len(specs), t0, settings.progress))
     table_wall = time.monotonic() - t0
+    summaries = [s for s in done if s.get("label", "pseudo") in ("pseudo", "")]
+    for label in other:
+        got = [s for s in done if s.get("label") == label]
+        rows = table_rows({m: [s for s in got if s["method"] == m] for m in c["methods"] if m in LABEL_METHODS})
+        print(f"\nStabilization Table with the {label} models, SIMULATED rig:")
+        print(format_table_text(rows))
+        results.setdefault("labels", {})[label] = {"runs": c["runs"], "s_d": c["s_d"], "k": c["k"], "rows": rows,
+                                                   "runs_detail": [_compact(s) for s in got]}
+    if "pseudo" not in labels:
+        return results
     by_method = {m: [s for s in summaries if s["method"] == m] for m in c["methods"]}
     rows = table_rows(by_method)
     print(f"\nStabilization Table, SIMULATED rig ({c['runs']} runs per method, s_d = {c['s_d']}, "
@@ -348,7 +372,7 @@ def run(settings: Settings) -> dict:
     print(format_table_text(rows))
     results["table"] = {"runs": c["runs"], "s_d": c["s_d"], "k": c["k"], "steps": c["steps"],
                         "jobs": settings.jobs, "start": c["start"], "wall_s": round(table_wall, 1),
-                        "cpus": os.cpu_count(), "rows": rows,
+                        "cpus": os.cpu_count(), "rows": rows, "other_label_runs": len(done) - len(summaries),
                         "runs_detail": [_compact(s) for s in summaries]}
     plot_traces(by_method, settings.figures / "stab_traces.png")
 
@@ -409,6 +433,7 @@ def render(results: dict) -> dict[str, str]:
         blocks["stabilization-cost"] = render_cost(results["table"])
     blocks["stabilization-k"] = render_k(results.get("tune_k"))
     blocks["stabilization-sweep"] = render_sweep(results.get("sweep"))
+    blocks["stabilization-labels"] = render_labels(results.get("labels"), results.get("table", {}).get("rows", {}))
     blocks["stabilization-extension"] = render_extension(
         results.get("extension"), results.get("table", {}).get("rows", {}))
     return blocks
@@ -450,8 +475,9 @@ def render_reading(rows: dict) -> str:
 
 def render_cost(t: dict) -> str:
     """Return the cost sentence: wall time of the Table and how it was run."""
-    n = sum(r["n"] for r in t["rows"].values())
-    return (f"The Table ({n} runs) took **{t['wall_s']} s** wall on {t.get('cpus')} cores with "
+    n = sum(r["n"] for r in t["rows"].values()) + t.get("other_label_runs", 0)
+    what = f"{n} runs" + (", both labels" if t.get("other_label_runs") else "")
+    return (f"The Table ({what}) took **{t['wall_s']} s** wall on {t.get('cpus')} cores with "
             f"{t['jobs']} graphs in parallel (start = {t['start']}; the machine was shared with "
             "other jobs).")
 
@@ -500,6 +526,30 @@ def render_sweep(sweep: dict | None) -> str:
         out.append(f"* Tracking error |ŝ − s_d| of injection over s_d: {fmt(np.nanmin(inj_err), '.3f')}"
                    f"–{fmt(np.nanmax(inj_err), '.3f')}.")
     return "\n".join(out)
+
+
+def render_labels(labels: dict | None, main_rows: dict) -> str:
+    """Return the Table per training label through the graph: the paper's pseudo label (the Table
+    above) beside the others, method by method."""
+    if not labels:
+        return "(not run yet: `slip reproduce stabilization`)"
+    out = ["| method | label | success rate | y (mm) | F_N (kPa) | steps | paper's success, y, F_N |",
+           "|---|---|---|---|---|---|---|"]
+    for m in TABLE_METHODS:
+        p = PAPER_TABLE[m]
+        if not any(m in v["rows"] for v in labels.values()):
+            continue
+        for label, rows in (("pseudo", main_rows), *((k, v["rows"]) for k, v in labels.items())):
+            d = rows.get(m)
+            if not d or m == "none":
+                continue
+            out.append(f"| {METHOD_LABELS[m]} | {label} | {fmt(d.get('success_rate'))} | {fmt(d.get('y_mean'))} ± "
+                       f"{fmt(d.get('y_std'))} | {fmt(d.get('fn_mean'))} ± {fmt(d.get('fn_std'))} | "
+                       f"{fmt(d.get('steps_mean'), '.0f')} | {fmt(p['success'])}, {fmt(p['y'])}, {fmt(p['fn'])} |")
+    some = next(iter(labels.values()))
+    return "\n".join([f"{some['runs']} runs per method and label through `launch stabilize.yaml label:=LABEL` "
+                      f"(the shipped models of that label; the Table's seeds and materials, s_d = {some['s_d']}, "
+                      f"k = {some['k']}); simulated rig, not measurements.", "", *out])
 
 
 def render_extension(r: dict | None, main_rows: dict) -> str:

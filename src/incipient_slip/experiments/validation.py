@@ -142,7 +142,8 @@ def closed_loop(method: str, params: dict, material: str, seed: int, model, step
 
 
 SWEEP_SD = (0.3, 0.5, 0.7, 0.8)
-CONTROLLED = tuple(m for m in TABLE_METHODS if m != "none") + ("oracle",)   # the methods that act on F_N
+CONTROLLED = tuple(m for m in TABLE_METHODS if m != "none") + ("oracle",)
+LABEL_METHODS = ("injection", "e10", "e19")     # the rows of another label than the paper's   # the methods that act on F_N
 # stage-1 refit per point: (collection series, no-action runs per material, evaluations); the second
 # only when the first cannot meet T1-T4 (an open-loop rule, the same for every point)
 REFITS = ((25, 2, 25), (50, 3, 40))
@@ -227,6 +228,7 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
     from incipient_slip.sim.rig import series_seed
     from incipient_slip.sim.scene import load_scene
     from incipient_slip.models.estimator_core import limit_blas_threads
+    from incipient_slip.models.features import METHODS
     from incipient_slip.models.pipeline import run_study
 
     from .datasets import ensure_dataset
@@ -245,13 +247,31 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
     dirs = {"paper": ensure_dataset(_scene("paper", scene.params), n_series, seed + 1, d / "paper", workers=1,
                                     progress=False, views={d / "no_injection": _scene("no_injection", scene.params)}),
             "no_injection": d / "no_injection"}
-    study = run_study(dirs, quick=True, max_train=2000, grid_max=600, progress=False)
-    models = {m: r.model for m, r in study.results.items()}
     mats = tuple(materials) if materials else scene.materials
-    table = {}
-    for method in TABLE_METHODS + ("oracle",):
-        table[method] = [closed_loop(method, scene.params, mats[j % len(mats)], series_seed(seed + 2, j),
-                                     models.get(method), steps) for j in range(runs)]
+    by_label = {}
+    # the other labels' rows where the answer reads them: the answer's methods, at the points the
+    # open-loop data allow and the fitted one (10 minutes for `slip reproduce all`, issue 27)
+    rows = label_rows(scene.params)
+    if consistent is False and name != "fitted":
+        rows = {"pseudo": rows["pseudo"]}
+    for key, rule in rows.items():
+        methods = METHODS if key == "pseudo" else LABEL_METHODS
+        study = run_study(dirs, methods=methods, quick=True, max_train=2000, grid_max=600, progress=False,
+                          label=rule)
+        row = {"rule": {"name": rule.name, "friction_lag_s": rule.friction_lag_s},
+               "label_error_by_fn": label_error_by_fn(dirs["paper"], rule),
+               "rmse": {m: float(r.scores.rmse.mean()) for m, r in study.results.items()},
+               "top10": {m: float(r.scores.top10_rmse.mean()) for m, r in study.results.items()},
+               "rmse_truth": {m: rmse_to_truth(r) for m, r in study.results.items()},
+               "models": {m: r.model for m, r in study.results.items()}}
+        row["runs"] = {method: [closed_loop(method, scene.params, mats[j % len(mats)], series_seed(seed + 2, j),
+                                            row["models"].get(method), steps) for j in range(runs)]
+                       for method in (TABLE_METHODS + ("oracle",) if key == "pseudo" else LABEL_METHODS)}
+        by_label[key] = row
+    models = by_label["pseudo"].pop("models")
+    table = by_label["pseudo"].pop("runs")
+    for row in by_label.values():
+        row.pop("models", None)
     sweep = {}
     for method in SWEEP_METHODS if sweep_runs else ():
         sweep[method] = {str(sd): [closed_loop(method, scene.params, mats[j % len(mats)], series_seed(seed + 3, j),
@@ -263,9 +283,47 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
                                                            "refits": fit["refits"], "seconds": fit.get("seconds")},
             "trajectory": trajectory,
             "sweep": sweep,
-            "consistent": consistent, "rmse": {m: float(r.scores.rmse.mean()) for m, r in study.results.items()},
-            "top10": {m: float(r.scores.top10_rmse.mean()) for m, r in study.results.items()},
-            "runs": table, "seconds": time.perf_counter() - t0}
+            "consistent": consistent, "rmse": by_label["pseudo"]["rmse"], "top10": by_label["pseudo"]["top10"],
+            "runs": table, "labels": by_label, "seconds": time.perf_counter() - t0}
+
+
+def label_rows(params: dict) -> dict:
+    """Return {row name: LabelRule} of the labels a point is run with: the paper's, the measured
+    ratio with nothing identified (tau 0) and, where the point's friction limit lags, the measured
+    ratio with that lag as if identified exactly (docs/estimation.md)."""
+    from incipient_slip.models.labels import LabelRule
+
+    rows = {"pseudo": LabelRule("pseudo"), "measured-ratio": LabelRule("measured-ratio")}
+    lag = float(params["stick_slip"]["friction_limit_lag_s"])
+    if lag > 0:
+        rows["measured-ratio, lag identified"] = LabelRule("measured-ratio", lag)
+    return rows
+
+
+def label_error_by_fn(data_dir, rule) -> list[dict]:
+    """Return the label minus the simulator's true load ratio by F_N bin over every period of the
+    collection series (the label's own windows: after the first onset too; no model involved)."""
+    from incipient_slip.models.dataset import load_series, series_paths
+    from incipient_slip.models.labels import label_series, training_labels
+
+    pairs = []
+    for path in series_paths(data_dir):
+        series = load_series(path)
+        lab = label_series(series)
+        if lab.gross_slip_index < 0:
+            continue
+        err = training_labels(series, lab, rule) - np.clip(np.nan_to_num(series.load_ratio_stick), 0.0, 1.0)
+        pairs.extend(zip(series.normal_force_kpa.tolist(), err.tolist()))
+    return cal.label_report(pairs)
+
+
+def rmse_to_truth(result) -> float:
+    """Return a method's held-out RMSE against the simulator's true load ratio (mean over series)."""
+    from incipient_slip.models.evaluation import series_scores
+
+    test = result.test
+    truth = np.clip(np.nan_to_num(test.load_ratio_stick), 0.0, 1.0)
+    return float(series_scores(result.method, truth, result.pred, test.series, test.material).rmse.mean())
 
 
 def summarize(runs: list) -> dict:
@@ -413,6 +471,9 @@ def _slug(name: str) -> str:
 
 def _summarize_point(p: dict) -> None:
     p["table"] = {m: summarize(r) for m, r in p["runs"].items()}
+    for row in p.get("labels", {}).values():        # the pseudo row's runs are the point's own
+        if "runs" in row:
+            row["table"] = {m: summarize(r) for m, r in row["runs"].items()}
     p["sweep_table"] = {m: {sd: summarize(r) for sd, r in by_sd.items()} for m, by_sd in p.get("sweep", {}).items()}
 
 
@@ -599,8 +660,7 @@ ANSWER_METHODS = ("oracle", "injection", "e10", "e19")
 
 
 def _label_bias(fit: dict) -> str:
-    rows = (fit.get("summary") or {}).get("label_error_by_fn") or []
-    return ", ".join(f"{r['bin']} {r['mean']:+.2f}" for r in rows) or "–"
+    return _bias((fit.get("summary") or {}).get("label_error_by_fn"))
 
 
 def render_answer(results: dict) -> str:
@@ -621,21 +681,51 @@ def render_answer(results: dict) -> str:
                   f"(y {t['injection']['y']:.2f} mm, F_N {t['injection']['fn']:.2f} kPa), oracle {t['oracle']['success']:.1f} "
                   f"(y {t['oracle']['y']:.2f} mm, F_N {t['oracle']['fn']:.2f} kPa), E10 {t['e10']['success']:.1f}, "
                   f"E19 {t['e19']['success']:.1f}; paper: injection 1.0, E10 1.0, E19 0.8."]
+        for key, table, _ in label_tables(fitted)[1:]:
+            i = table["injection"]
+            lines[-1] += (f" With the {key} label: injection {i['success']:.1f} (y {i['y']:.2f} mm, F_N {i['fn']:.2f} kPa), "
+                          f"E10 {table['e10']['success']:.1f}, E19 {table['e19']['success']:.1f}.")
+        for key, row in (fitted.get("labels") or {}).items():
+            lines += ["", f"*Estimation at the fitted point, {key} label* (held-out series of the point's data set; "
+                      "RMSE against the model's own label / against the true load ratio): " + ", ".join(
+                          f"{LABELS[m]} {row['rmse'][m]:.3f} / {row['rmse_truth'][m]:.3f}" for m in row["rmse"]) + "."]
     ok = {n: p for n, p in pts.items() if p.get("table") and p.get("consistent")}
     if ok:
-        lines += ["", f"Success rate at every point consistent with the open-loop targets ({len(ok)} points), "
-                  "and the pseudo label minus the true load ratio by F_N there (collection protocol):", "",
-                  "| point | " + " | ".join(LABELS[m].split(" (")[0] for m in ANSWER_METHODS) + " | label - truth by F_N |",
-                  "|---|" + "---|" * len(ANSWER_METHODS) + "---|"]
+        lines += ["", f"Success rate at every point consistent with the open-loop targets ({len(ok)} points), a "
+                  "row per training label where the point was run with it (docs/estimation.md: pseudo = the "
+                  "paper's; measured-ratio = nothing identified; lag identified = the point's lag as if "
+                  "`launch identify.yaml` measured it exactly), and the label minus the true load ratio by F_N "
+                  "over the point's collection series (every period; the pseudo label before its onset where "
+                  "the point predates the label rows). The oracle does not depend on the label:", "",
+                  "| point | label | " + " | ".join(LABELS[m].split(" (")[0] for m in ANSWER_METHODS)
+                  + " | label - truth by F_N |", "|---|---|" + "---|" * len(ANSWER_METHODS) + "---|"]
         for n, p in ok.items():
-            lines.append(f"| {n} | " + " | ".join(f"{p['table'][m]['success']:.1f}" for m in ANSWER_METHODS)
-                         + f" | {_label_bias(p.get('fit', {}))} |")
+            for key, table, bias in label_tables(p):
+                lines.append(f"| {n} | {key} | " + " | ".join(
+                    f"{(p['table'] if m == 'oracle' else table)[m]['success']:.1f}" for m in ANSWER_METHODS)
+                    + f" | {bias} |")
+        keys = list(dict.fromkeys(key for p in ok.values() for key, _, _ in label_tables(p)))
         for m in ANSWER_METHODS:
-            held = [n for n, p in ok.items() if p["table"][m]["success"] >= 0.8]
-            lines.append("")
-            lines.append(f"* {LABELS[m].split(' (')[0]} holds (success >= 0.8) at {len(held)} of {len(ok)} points"
-                         + (": " + "; ".join(held) if held and len(held) < len(ok) else ""))
+            for key in (keys if m != "oracle" else ["pseudo"]):
+                with_key = {n: t for n, p in ok.items() for k, t, _ in label_tables(p) if k == key}
+                held = [n for n, t in with_key.items() if t[m]["success"] >= 0.8]
+                who = LABELS[m].split(" (")[0] + ("" if m == "oracle" else f" ({key})")
+                lines += ["", f"* {who} holds (success >= 0.8) at {len(held)} of {len(with_key)} points"
+                          + (": " + "; ".join(held) if held and len(held) < len(with_key) else "")]
     return "\n".join(lines)
+
+
+def label_tables(p: dict) -> list:
+    """Return [(label row, its Table, its label - truth by F_N)] of a point (pseudo only before the label rows)."""
+    rows = p.get("labels") or {}
+    out = [("pseudo", p["table"], _bias(rows.get("pseudo", {}).get("label_error_by_fn")) if rows
+            else _label_bias(p.get("fit", {})))]
+    return out + [(key, row["table"], _bias(row["label_error_by_fn"])) for key, row in rows.items()
+                  if key != "pseudo" and row.get("table")]
+
+
+def _bias(rows) -> str:
+    return ", ".join(f"{r['bin']} {r['mean']:+.2f}" for r in rows or ()) or "–"
 
 
 def task_times(pts: dict, cores: int = 16) -> str:

@@ -66,10 +66,13 @@ def limit_blas_threads(n: int = 1):
     return threadpool_limits(limits=n)
 
 
-def default_model_path(method: str) -> Path:
-    """Return the shipped model file of a method: model_dir()/<method>.npz."""
+def default_model_path(method: str, label: str = "pseudo") -> Path:
+    """Return the shipped model file of a method trained on `label`: model_dir()/<method>.npz for the
+    paper's pseudo label, model_dir()/<label>/<method>.npz for another (docs/estimation.md)."""
     from ..paths import model_dir
-    return model_dir() / f"{method}.npz"
+    from .labels import LabelRule
+    LabelRule(label)                                  # an unknown label is named here
+    return model_dir() / f"{method}.npz" if label == "pseudo" else model_dir() / label / f"{method}.npz"
 
 
 def load_model(path: str | Path | None = None, *, method: str | None = None,

@@ -15,6 +15,7 @@ from . import dataset as ds
 from .evaluation import SeriesScores, paired_tests, series_scores
 from .features import METHODS, feature_spec
 from .modelfile import Model
+from .labels import label_rule
 from .training import (WindowSet, forked_map, held_out_series, load_window_sets, split_train_test,
                        train_model)
 
@@ -61,14 +62,15 @@ class StudyResult:
 
 
 def load_all_windows(data_dirs: dict, methods=METHODS, window_s: float = 1.0, progress: bool = True,
-                     workers: int = 1) -> dict:
-    """Return {method: WindowSet} under the paper's rule (all windows; filter post_slip for the
-    incipient range): each data set's series read once for all its methods, by `workers` processes."""
+                     workers: int = 1, label="pseudo") -> dict:
+    """Return {method: WindowSet} of every window under `label` (default the paper's rule; filter
+    post_slip for the incipient range): each data set's series read once for all its methods, by
+    `workers` processes."""
     out = {}
     for scene in dict.fromkeys(DATASET_OF_METHOD[m] for m in methods):
         ms = [m for m in methods if DATASET_OF_METHOD[m] == scene]
         sets = load_window_sets(data_dirs[scene], [feature_spec(m, window_s=window_s) for m in ms],
-                                progress=progress, workers=workers)
+                                progress=progress, workers=workers, label=label)
         out.update(zip(ms, sets))
     return {m: out[m] for m in methods}
 
@@ -88,11 +90,12 @@ def _pool_task(shared: tuple, method: str):
 def run_study(data_dirs: dict, methods=METHODS, kind: str = "svr", quick: bool = False,
               max_train: int | None = 6000, grid_max: int = 2000, window_s: float = 1.0,
               after_slip: str = "zero", progress: bool = True, windows: dict | None = None,
-              client=None, workers: int = 1) -> StudyResult:
+              client=None, workers: int = 1, label="pseudo") -> StudyResult:
     """Train and evaluate each method on its data set with one shared held-out series set.
 
     data_dirs: {"paper": dir with injection, "no_injection": dir without}.
-    windows: preloaded `load_all_windows` result (paper's rule), reused across label policies.
+    windows: preloaded `load_all_windows` result (of `label`), reused across after-slip policies.
+    label: the training label (`labels.LABELS` name or `labels.LabelRule`; default the paper's).
     client: a dask Client for the grid searches' fits (training.grid_search_svr); workers: train
     that many methods at a time in forked local processes instead, and read the windows with as
     many (the same models: every fit is deterministic).
@@ -100,7 +103,7 @@ def run_study(data_dirs: dict, methods=METHODS, kind: str = "svr", quick: bool =
     t0 = time.perf_counter()
     methods = list(methods)
     if windows is None:
-        windows = load_all_windows(data_dirs, methods, window_s, progress, workers)
+        windows = load_all_windows(data_dirs, methods, window_s, progress, workers, label)
     windows = {m: windows[m] for m in methods}
     if after_slip == "drop":
         windows = {m: w.subset(~w.post_slip) for m, w in windows.items()}
@@ -131,6 +134,8 @@ def run_study(data_dirs: dict, methods=METHODS, kind: str = "svr", quick: bool =
         sc = series_scores(m, test.y, pred, test.series, test.material)
         tr.model.header["test_series"] = [int(v) for v in test_series]
         tr.model.header["test_rmse_mean"] = float(sc.rmse.mean())
+        rule = label_rule(label)
+        tr.model.header.update(label=rule.name, friction_lag_s=rule.friction_lag_s)
         results[m] = MethodResult(m, tr.model, tr.report, test, pred, sc)
     scores = {m: r.scores for m, r in results.items()}
     ref_m = "injection" if "injection" in scores else methods[0]

@@ -2,8 +2,9 @@
 
     python -m incipient_slip.nodes.estimator method:=injection
 
-Loads `model` (default `models/<method>.npz`; its feature spec must fit the stream, and its
-window is `window_s`) and reads `/biotac/pac` (vibration methods) or `/biotac/slow` (electrode
+Loads `model` (default the shipped model of `method` trained on `label`: `models/<method>.npz`
+for the paper's pseudo label, `models/measured-ratio/<method>.npz`; its feature spec must fit the
+stream, its header's label must be `label`, and its window is `window_s`) and reads `/biotac/pac` (vibration methods) or `/biotac/slow` (electrode
 methods). The scheduling by stamps, validity after seq gaps and stale streams, and the
 wall-clock watchdog are `models.estimator_core.PeriodEstimator`; this node wires it.
 
@@ -26,6 +27,7 @@ from incipient_slip.models.estimator_core import (
     ModelFileError, PeriodEstimator, default_model_path, load_model,
 )
 from incipient_slip.models.features import METHODS
+from incipient_slip.models.labels import LABELS, rule_of_header
 
 
 class Estimator(Node):
@@ -36,7 +38,10 @@ class Estimator(Node):
     OUTPUTS = {SlipEstimate.TOPIC: SlipEstimate}
     PARAMS = {
         "method": Param("injection", choices=METHODS, help="estimation method"),
-        "model": Param("", help='model file ("": the shipped models/<method>.npz)'),
+        "label": Param("", choices=("",) + LABELS, help="the training label of the shipped model (docs/estimation.md): "
+                       "pseudo, the paper's (models/<method>.npz); measured-ratio (models/measured-ratio/); "
+                       '"": pseudo, or what model:= was trained on'),
+        "model": Param("", help='model file ("": the shipped model of method and label)'),
         "window_s": Param(0.0, lo=0.0, help="0: the model's window; otherwise must equal it (s)"),
         "stale_after_s": Param(0.05, lo=0.0, help="newest sample older than this before a boundary: stale (s)"),
         "wall_timeout_s": Param(2.0, lo=0.0, help="no frame for this long (wall clock): stale; 0 = off (s)"),
@@ -47,11 +52,16 @@ class Estimator(Node):
 
     def __init__(self, **kwargs):
         super().__init__("estimator", **kwargs)
-        path = self.param("model") or default_model_path(self.param("method"))
+        label = self.param("label")
+        path = self.param("model") or default_model_path(self.param("method"), label or "pseudo")
         try:
             model = load_model(path, method=self.param("method"), window_s=self.param("window_s") or None)
         except ModelFileError as exc:     # run_node reports a ParamError in one line, exit 2
             raise ParamError(f"node {self.name!r}: {exc}") from None
+        trained_on = rule_of_header(model.header)
+        if label and trained_on.name != label:
+            raise ParamError(f"node {self.name!r}: model {path} was trained on label {trained_on.name!r}, "
+                             f"not {label!r} (label:={trained_on.name}, or another model:=)")
         self.core = PeriodEstimator(model, PERIOD_NS, round(self.param("stale_after_s") * 1e9),
                                     self.param("wall_timeout_s"))
         pac = model.spec.stream == "pac"
@@ -67,7 +77,7 @@ class Estimator(Node):
         if self.param("wall_timeout_s") > 0:
             self.create_timer(min(0.1, self.param("wall_timeout_s") / 4), self.watchdog)
         self.on_shutdown(self.report)
-        self.log(f"method {model.spec.method}, model {path}, window {model.spec.window_s} s, stream {self.frames.topic}")
+        self.log(f"method {model.spec.method}, model {path} (label {trained_on}), window {model.spec.window_s} s, stream {self.frames.topic}")
 
     def on_tick(self, msg: ActuatorState) -> None:
         if self.origin.origin_ns is None:

@@ -33,7 +33,7 @@ POSITIVE = dict(lo=1e-3)
 TRUTH_WAIT_S = 5.0          # lock-step: longest wait for the last period's /sim/truth before the summary
 # params copied into the summary: what a run was, so that a summary says which model, rig
 # params overlay and recording it came from
-RECORDED = ("method", "s_d", "k", "seed", "material", "rig", "stop_on_travel", "model", "rig_params", "recording")
+RECORDED = ("method", "s_d", "k", "seed", "material", "rig", "stop_on_travel", "model", "label", "rig_params", "recording")
 
 
 class Supervisor(Node):
@@ -63,6 +63,7 @@ class Supervisor(Node):
         "method": "", "s_d": Param(float("nan"), finite=False), "k": Param(float("nan"), finite=False),
         "seed": 0, "material": "", "rig": "sim",
         "model": Param("", help="the estimator's model file, recorded in the summary ('' = the shipped one)"),
+        "label": Param("", help="the training label of the shipped model (label:=), recorded in the summary ('' = model:='s own)"),
         "rig_params": Param("", help="the simulated rig's params overlay, recorded in the summary"),
         "recording": Param("", help="the replayed recording (rig:=replay), recorded in the summary"),
     }
