@@ -163,3 +163,14 @@ def test_a_run_into_the_docs_without_joint_keeps_the_committed_joint_set(tmp_pat
         assert res["points"]["fitted"]["runs"] != committed["points"]["fitted"]["runs"]   # rerun (3 steps)
     else:
         assert "joint" not in res and list(res["points"]) == ["fitted"]
+
+
+def test_the_plan_names_what_runs_and_what_is_kept_and_starts_nothing(tmp_path, capsys):
+    from incipient_slip.cli import main
+    assert main(["reproduce", "validation", "--plan", "--quick", "--out", str(tmp_path)]) == 0
+    text = capsys.readouterr().out
+    assert "2 runs per method" in text and "fitted, beta 1.25, mu spread 1, lag 1 s" in text
+    assert not (tmp_path / "results.json").exists()          # nothing ran
+    assert main(["reproduce", "validation", "--plan", "--joint", "--out", str(tmp_path)]) == 0
+    text = capsys.readouterr().out
+    assert "joint set: 12 refits" in text and "none run and none kept" in text

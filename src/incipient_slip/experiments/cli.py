@@ -128,6 +128,9 @@ def cmd_reproduce(args) -> int:
     if settings.quick and not args.render_only:
         print(f"slip reproduce {args.experiment} --quick: a PREVIEW, not the docs' result: {module.QUICK}",
               flush=True)
+    if getattr(args, "plan", False):           # an experiment that plans before it runs: print, start nothing
+        print(module.plan(settings).describe())
+        return 0
     source = settings.results_file(getattr(module, "RESULTS", None))
     if args.render_only:
         if not source.is_file():

@@ -98,6 +98,8 @@ def add_arguments(parser) -> None:
                              "one per material, the pad's values from the last): predict the Table for that rig "
                              "on its identified materials at the values and at each end of their intervals, one at "
                              "a time (no refit to the paper's targets); results and page go to --out")
+    parser.add_argument("--plan", action="store_true",
+                        help="print what would run (points, refits, runs, what is kept) and exit; nothing starts")
     parser.add_argument("--workers", type=int, help="LocalCluster workers (default --jobs)")
     parser.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="a running dask scheduler instead of a LocalCluster")
 
@@ -346,10 +348,61 @@ def budget(settings) -> dict:
             "refits": opt("refits", settings.pick(QUICK_REFITS, None))}
 
 
-def run(settings) -> dict:
-    """Run every point of the uncertainty set on dask and return the Tables."""
-    from dask.distributed import as_completed
+@dataclasses.dataclass
+class Plan:
+    """What a validation run will do, checked before any cluster starts (`plan`; `--plan` prints it)."""
 
+    names: list                     # the one-at-a-time (or identified rig's) points whose Table runs
+    runs: int
+    n_series: int
+    steps: int
+    refits: tuple | None
+    joint: bool                     # refit every joint point, the Table where consistent
+    grid: dict                      # the joint set {name: overrides}
+    sweep_at: list                  # joint points run again with the s_d sweep
+    sweep_runs: int | None
+    scheduler: str | None
+    workers: int
+    work: Path
+    old: dict = dataclasses.field(default_factory=dict)   # kept results (--keep, or the committed page's)
+    kept_from: Path | None = None
+    rig_points: dict = dataclasses.field(default_factory=dict)   # an identified rig's points (--params)
+    provenance: dict | None = None
+    rig_materials: tuple | None = None
+
+    def sweep_of(self, name: str) -> int:
+        """Runs per s_d of a point's sweep (0: none; a joint point only when --sweep-at)."""
+        if name in self.sweep_at:
+            return self.sweep_runs or 3
+        return 0 if name in self.grid else (self.sweep_runs or 0)
+
+    def describe(self) -> str:
+        """Return the plan as lines a user can read before anything runs."""
+        lines = [f"validation plan: {self.runs} runs per method, {self.n_series} training series per data set, "
+                 f"{self.steps} steps per run; {'a running scheduler ' + self.scheduler if self.scheduler else f'a LocalCluster of {self.workers} workers'}"]
+        if self.rig_points:
+            lines.append(f"identified rig ({(self.provenance or {}).get('material')}): {len(self.rig_points)} points, "
+                         f"no refit: {', '.join(self.rig_points)}")
+        elif self.names:
+            lines.append(f"one-at-a-time points ({len(self.names)}), each refitted to T1-T4' and T7, then the Table "
+                         f"per label: {', '.join(self.names)}")
+        elif not self.old.get("points"):
+            lines.append("one-at-a-time points: none run and none kept (--keep RESULTS_JSON keeps a run's)")
+        if self.joint:
+            lines.append(f"joint set: {len(self.grid)} refits, the Table at each consistent one")
+        if self.sweep_at:
+            lines.append(f"s_d sweep ({self.sweep_runs or 3} runs per cell) at: {', '.join(self.sweep_at)}")
+        elif self.sweep_runs:
+            lines.append(f"s_d sweep ({self.sweep_runs} runs per cell) at every one-at-a-time point")
+        if self.kept_from:
+            kept = [n for n in self.old.get("points", {}) if n not in self.names]
+            lines.append(f"kept from {self.kept_from}: " + ", ".join(
+                (["the joint set"] if "joint" in self.old and not self.joint else []) + kept or ["nothing"]))
+        return "\n".join(lines)
+
+
+def plan(settings) -> Plan:
+    """Return the run's plan from the options; every usage error is raised here, before a cluster starts."""
     opt = settings.option
     joint = bool(opt("joint", False))
     b = budget(settings)
@@ -365,9 +418,6 @@ def run(settings) -> dict:
         committed = settings.results_file(RESULTS)
         if committed.is_file():
             keep = committed
-            if settings.progress:
-                print(f"keeping the joint set and any point not run from {committed} (--joint reruns it)",
-                      flush=True)
     old = {}
     if keep:
         import json
@@ -375,7 +425,6 @@ def run(settings) -> dict:
             old = json.loads(Path(keep).read_text())
         except (OSError, ValueError) as e:
             raise UsageError(f"--keep {keep}: {e}") from None
-    work = Path(settings.work) / "data"
     rig_points, provenance, rig_materials = {}, None, None
     if opt("params"):
         from incipient_slip.sim.scene import SceneError, load_overlay
@@ -398,24 +447,31 @@ def run(settings) -> dict:
             raise UsageError(f"--sweep-at {n!r}: not a point of the joint set (e.g. {next(iter(grid))!r})")
     if sweep_at and not joint and "joint" not in old:
         raise UsageError("--sweep-at needs the joint results: add --joint, or --keep a results file that has them")
+    return Plan(list(names), runs, n_series, steps, refits, joint, grid, list(sweep_at), opt("sweep_runs"),
+                scheduler, opt("workers", settings.jobs), Path(settings.work) / "data", old,
+                Path(keep) if keep else None, rig_points, provenance, rig_materials)
+
+
+def execute(p: Plan, settings) -> tuple[dict, dict, dict]:
+    """Run the plan's tasks on dask; return the one-at-a-time Tables, the joint Tables and the joint
+    refits without a Table, each {point: result}."""
+    from dask.distributed import as_completed
 
     def table_future(name, overrides, fit=None):
-        if name in sweep_at:
-            sweep = opt("sweep_runs") or 3
-        else:                 # a joint point's Table has no sweep unless it is --sweep-at
-            sweep = 0 if name in grid else opt("sweep_runs", 0)
-        return client.submit(point_task, name, overrides, runs, n_series, steps, settings.seed, str(work),
-                             sweep, refits, fit, str(settings.figures) if settings.figures else None,
-                             rig_points.get(name), rig_materials,
+        sweep = p.sweep_of(name)
+        return client.submit(point_task, name, overrides, p.runs, p.n_series, p.steps, settings.seed, str(p.work),
+                             sweep, p.refits, fit, str(settings.figures) if settings.figures else None,
+                             p.rig_points.get(name), p.rig_materials,
                              key=f"validation-{_slug(name)}-{settings.seed}-sweep{sweep}",
                              pure=False)
 
     done, joint_done, refit_only = {}, {}, {}
-    with open_client(scheduler, opt("workers", settings.jobs)) as client:
-        futures = [table_future(n, POINTS.get(n, {})) for n in names] + [table_future(n, grid[n]) for n in sweep_at]
-        futures += [client.submit(refit_task, n, ov, settings.seed, refits,
+    with open_client(p.scheduler, p.workers) as client:
+        futures = ([table_future(n, POINTS.get(n, {})) for n in p.names]
+                   + [table_future(n, p.grid[n]) for n in p.sweep_at])
+        futures += [client.submit(refit_task, n, ov, settings.seed, p.refits,
                                   key=f"refit-{_slug(n)}-{settings.seed}", pure=False)
-                    for n, ov in (grid.items() if joint else ()) if n not in sweep_at]
+                    for n, ov in (p.grid.items() if p.joint else ()) if n not in p.sweep_at]
         total, i = len(futures), 0
         queue = as_completed(futures)
         for fut in queue:     # a consistent joint refit adds its Table to the queue
@@ -427,7 +483,7 @@ def run(settings) -> dict:
                 if res["consistent"]:     # (a --sweep-at point has its Table with the sweep already)
                     queue.add(table_future(res["point"], res["overrides"], res))
                     total += 1
-            elif res["point"] in grid:
+            elif res["point"] in p.grid:
                 joint_done[res["point"]] = res
             else:
                 done[res["point"]] = res
@@ -435,26 +491,32 @@ def run(settings) -> dict:
                 what = "refit" if "runs" not in res else "Table"
                 print(f"  [{i}/{total}] {what} of {res['point']!r} done in {res['seconds']:.0f} s "
                       f"({verdict} with T1-T4', T7)", flush=True)
-    points = {n: p for n, p in old.get("points", {}).items() if n not in names}
+    return done, joint_done, refit_only
+
+
+def merge(p: Plan, done: dict, joint_done: dict, refit_only: dict, settings) -> dict:
+    """Return the results: this run's points over the kept ones, with their Tables and figures."""
+    old = p.old
+    points = {n: q for n, q in old.get("points", {}).items() if n not in p.names}
     points.update(done)
-    points = {n: points[n] for n in (rig_points or POINTS) if n in points}
-    for p in points.values():
-        _summarize_point(p)
+    points = {n: points[n] for n in (p.rig_points or POINTS) if n in points}
+    for q in points.values():
+        _summarize_point(q)
     kept_only = not done and old.get("points")      # the one-at-a-time points all come from --keep
-    out = {"rig": provenance, "budget": settings.budget, "runs": old.get("runs", runs) if kept_only else runs,
-           "series": old.get("series", n_series) if kept_only else n_series, "steps": steps, "points": points,
+    out = {"rig": p.provenance, "budget": settings.budget, "runs": old.get("runs", p.runs) if kept_only else p.runs,
+           "series": old.get("series", p.n_series) if kept_only else p.n_series, "steps": p.steps, "points": points,
            "figure": _figure(points, settings.figures) if points else None}
-    for p in joint_done.values():
-        _summarize_point(p)
-    if joint:
-        out["joint"] = {"axes": {k: list(v) for k, v in JOINT.items()}, "runs": runs, "series": n_series,
-                        "points": {n: joint_done.get(n) or {"point": n, "overrides": grid[n],
+    for q in joint_done.values():
+        _summarize_point(q)
+    if p.joint:
+        out["joint"] = {"axes": {k: list(v) for k, v in JOINT.items()}, "runs": p.runs, "series": p.n_series,
+                        "points": {n: joint_done.get(n) or {"point": n, "overrides": p.grid[n],
                                                             "consistent": False, "fit": refit_only[n]}
-                                   for n in grid}}
+                                   for n in p.grid}}
     elif "joint" in old:
         out["joint"] = old["joint"]
         out["joint"]["points"].update(joint_done)
-    if joint_done or joint:
+    if joint_done or p.joint:
         out["joint_figure"] = _joint_figure(out["joint"], settings.figures)
     elif "joint" in old:
         out["joint_figure"] = old.get("joint_figure")
@@ -463,6 +525,14 @@ def run(settings) -> dict:
     elif old.get("trajectory"):
         out["trajectory"] = old["trajectory"]
     return out
+
+
+def run(settings) -> dict:
+    """Plan (every usage error first), execute on dask, merge with the kept results."""
+    p = plan(settings)
+    if settings.progress:
+        print(p.describe(), flush=True)
+    return merge(p, *execute(p, settings), settings)
 
 
 def _slug(name: str) -> str:
