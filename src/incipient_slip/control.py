@@ -152,14 +152,19 @@ def next_force(current_force_kpa: float, stick_ratio, params: ControlParams,
     return ControlDecision(clamp_force(current + change, params), False, "")
 
 
-def applied_force(command_kpa: float, current_kpa: float, limit_kpa: float = SAFETY_LIMIT_KPA) -> float:
-    """The force a node that moves the hardware applies for a command: clamped to [0, limit].
+def applied_force(command_kpa: float, current_kpa: float, limit_kpa: float = SAFETY_LIMIT_KPA,
+                  max_step_kpa: float = math.inf) -> float:
+    """The force a node that moves the hardware applies for a command: at most `max_step_kpa` from
+    the current force (the law's own rate limit, kept where the force is applied), within [0, limit].
 
-    The second line of defence (the controller clamps first): a non-finite command keeps the
+    The second line of defence (the controller limits first): a non-finite command keeps the
     current force.
     """
     if not math.isfinite(command_kpa):
         return min(max(current_kpa, 0.0), limit_kpa)
+    # a hair of slack: the controller's own steps of exactly max_step pass unchanged
+    if math.isfinite(current_kpa) and abs(command_kpa - current_kpa) > max_step_kpa * (1.0 + 1e-9):
+        command_kpa = min(max(command_kpa, current_kpa - max_step_kpa), current_kpa + max_step_kpa)
     return min(max(command_kpa, 0.0), limit_kpa)
 
 

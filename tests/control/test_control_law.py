@@ -400,3 +400,12 @@ def test_one_table_gives_each_method_its_scene():
     assert scene_of("paper", "e19") == "paper"          # a scene named wins
     with pytest.raises(ValueError, match="known: injection"):
         scene_of("", "e20")
+
+
+@given(ANY_FLOAT, st.floats(0.0, SAFETY_LIMIT_KPA), st.floats(1e-3, SAFETY_LIMIT_KPA))
+def test_applied_force_moves_at_most_one_rate_step_from_the_current_force(command, current, step):
+    force = applied_force(command, current, SAFETY_LIMIT_KPA, step)
+    assert 0.0 <= force <= SAFETY_LIMIT_KPA
+    assert abs(force - current) <= step * (1 + 1e-9) + 1e-12
+    if math.isfinite(command) and abs(command - current) <= step and 0.0 <= command <= SAFETY_LIMIT_KPA:
+        assert force == command                     # a step the law itself takes passes unchanged

@@ -170,7 +170,7 @@ def test_collection_protocol_reproduces_the_data_set_series(graph):
 
 
 def test_lockstep_applies_only_the_awaited_period_and_clamps_to_the_safety_limit(graph):
-    proc = start_rig(graph, scene="mechanics", steps=5, normal_force_kpa=2.5)
+    proc = start_rig(graph, scene="mechanics", steps=5, normal_force_kpa=2.5, max_step_kpa=6.0)
     ctl = Controller(graph.dir)
     connect(ctl, proc, ctl.grip)
     ctl.spin_until(lambda: ctl.ticks() == 1, proc=proc)
@@ -189,6 +189,25 @@ def test_lockstep_applies_only_the_awaited_period_and_clamps_to_the_safety_limit
     err = stop(proc)
     assert "refused GripCommand(period=3)" in err         # the repeat of period 0 is throttled
     assert "asked 99.0 kPa; applying 6.0 kPa" in err
+    ctl.close()
+
+
+def test_a_forged_command_moves_the_applied_force_at_most_one_rate_step_per_period(graph):
+    # the grip law's rate limit (0.5 kPa per period) is kept where the force is applied: a command
+    # of 99 kPa, valid on the wire, moves F_N by one step, then the next by one more
+    proc = start_rig(graph, scene="mechanics", steps=5, normal_force_kpa=2.5)
+    ctl = Controller(graph.dir)
+    connect(ctl, proc, ctl.grip)
+    ctl.spin_until(lambda: ctl.ticks() == 1, proc=proc)
+    ctl.grip.publish(GripCommand(normal_force_kpa=99.0, period=0))
+    ctl.spin_until(lambda: ctl.ticks() == 2, proc=proc)
+    ctl.grip.publish(GripCommand(normal_force_kpa=0.0, period=1))
+    ctl.spin_until(lambda: ctl.ticks() == 3, proc=proc)
+    ctl.grip.publish(GripCommand(normal_force_kpa=2.7, period=2))        # within one step: as asked
+    ctl.spin_until(lambda: ctl.ticks() == 4, proc=proc)
+    assert [m.normal_force_kpa for m in ctl.got[RobotState]] == pytest.approx([2.5, 3.0, 2.5, 2.7])
+    err = stop(proc)
+    assert "asked 99.0 kPa; applying 3.0 kPa" in err and "at most 0.5 kPa per period" in err
     ctl.close()
 
 

@@ -16,7 +16,8 @@ at the period start, `ActuatorState` at its end. The runtime reads stamp 0 as "s
 so a message due at t = 0 is stamped 1 ns (within every consumer's half-sample tolerance).
 
 Protocols: `closed_loop` applies the F_N of `/grip/command` (`normal_force_kpa` before the first
-command; `hold=True` keeps the current force); `commanded` (identification, launch/identify.yaml)
+command, moved at most `max_step_kpa` per period and never past the 6 kPa safety limit, whatever
+the command asks; `hold=True` keeps the current force); `commanded` (identification, launch/identify.yaml)
 does the same and puts the actuator where `/actuator/command` says instead of stepping it (clamped
 to [0, actuator_limit_mm]; in lock-step period k+1 waits for both commands of period k); `collection` redraws F_N each period exactly as
 `sim.protocols.collection_forces_kpa(seed, steps)`. `seed` is the rig's own seed (series i of
@@ -94,6 +95,9 @@ class RigSim(Node):
         "actuator_limit_mm": Param(48.0, lo=0.0, hi=50.0, help="commanded: the actuator never goes past this (mm)"),
         "normal_force_kpa": Param(control.DEFAULT_INITIAL_FORCE_KPA, lo=0.0, hi=control.SAFETY_LIMIT_KPA,
                                   help="F_N before the first command (kPa)"),
+        "max_step_kpa": Param(control.DEFAULT_MAX_STEP_KPA, lo=1e-6, hi=control.SAFETY_LIMIT_KPA,
+                              help="largest change of the applied F_N from one period to the next, whatever "
+                                   "a command asks (the grip law's own rate limit, kept here too; kPa)"),
         "injection_db": Param(None, help="PZT intensity (dB); None: the scene's"),
         "steps": Param(450, lo=1, help="periods to simulate"),
         "lockstep": Param(True, help="true: start period k+1 when GripCommand(period=k) arrives"),
@@ -151,6 +155,7 @@ class RigSim(Node):
         self.k = 0                        # next period to simulate
         self.last_command = -1            # period of the last command applied
         self.refused_commands = 0
+        self.clamped_commands = 0         # commands whose force was limited here (rate or safety limit)
         self.waiting_since = None         # lock-step: wall time we began waiting for period k-1
         self.queue: deque = deque()       # real time: (stamp_ns, publisher, message) not yet due
         self.t0 = None
@@ -287,10 +292,14 @@ class RigSim(Node):
             return
         self.last_command = msg.period
         if self.protocol in ("closed_loop", "commanded") and not msg.hold:
-            self.force_kpa = control.applied_force(msg.normal_force_kpa, self.force_kpa)
+            self.force_kpa = control.applied_force(msg.normal_force_kpa, self.force_kpa, control.SAFETY_LIMIT_KPA,
+                                                   self.param("max_step_kpa"))
             if self.force_kpa != msg.normal_force_kpa:
+                self.clamped_commands += 1
                 self.warn(f"GripCommand(period={msg.period}) asked {msg.normal_force_kpa} kPa; applying "
-                          f"{self.force_kpa} kPa (safety limit {control.SAFETY_LIMIT_KPA} kPa)", throttle_s=1.0)
+                          f"{self.force_kpa} kPa (safety limit {control.SAFETY_LIMIT_KPA} kPa, at most "
+                          f"{self.param('max_step_kpa')} kPa per period; {self.clamped_commands} clamped)",
+                          throttle_s=1.0)
         if self.lockstep and (not self.commanded or self.last_actuator == msg.period):
             self.advance()
 
