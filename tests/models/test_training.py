@@ -254,3 +254,21 @@ def test_accuracy_vs_time_fits_a_setting_met_in_several_sweeps_once(fake_injecti
     fits.point("model", "Nystroem 50", ws, ws, "nystroem", params, None, n_components=50)
     fits.point("scale", "Nystroem 60", ws, ws, "nystroem", params, None, n_components=60)
     assert len(calls) == 5
+
+
+def test_relabelled_windows_equal_the_windows_loaded_with_that_label(fake_injection_dir):
+    # the features are computed once; another label only replaces the target
+    from incipient_slip.models.features import feature_spec
+    from incipient_slip.models.labels import LabelRule
+    from incipient_slip.models.training import load_windows, relabel, series_targets
+    spec = feature_spec("e4")
+    rules = [LabelRule("pseudo"), LabelRule("measured-ratio", 0.5)]
+    base = load_windows(fake_injection_dir, spec, progress=False)
+    targets = series_targets(fake_injection_dir, rules)
+    for n, rule in enumerate(rules):
+        direct = load_windows(fake_injection_dir, spec, progress=False, label=rule)
+        moved = relabel(base, {i: t[n] for i, t in targets.items()})
+        np.testing.assert_array_equal(moved.y, direct.y)
+        np.testing.assert_array_equal(moved.X, direct.X)
+        np.testing.assert_array_equal(moved.period, direct.period)
+    assert any(not np.array_equal(t[0], t[1]) for t in targets.values())    # the two labels differ

@@ -49,7 +49,8 @@ def budget(settings: Settings) -> dict:
 
 def run(settings: Settings) -> dict:
     """Train each method and write its model file; return what was written."""
-    from incipient_slip.models.pipeline import run_study
+    from incipient_slip.models.pipeline import DATASET_OF_METHOD, load_all_windows, run_study
+    from incipient_slip.models.training import relabel, series_targets
     from incipient_slip.paths import model_dir
 
     from .datasets import study_datasets
@@ -57,11 +58,17 @@ def run(settings: Settings) -> dict:
     b = budget(settings)
     out = Path(settings.option("models_out", settings.pick(quick=settings.work / "models", full=model_dir())))
     dirs = study_datasets(settings, b["series"], b["steps"])
-    written, by_label = {}, {}
-    for label, after_slip in LABEL_VARIANTS.items():
-        study = run_study(dirs, methods=list(settings.option("methods", METHODS)), quick=settings.quick,
-                          max_train=b["max_train"], grid_max=b["grid_max"], progress=settings.progress,
-                          after_slip=after_slip, workers=settings.jobs, label=label)
+    methods = list(settings.option("methods", METHODS))
+    # the features once; each label's windows are the same ones with its own target
+    windows = load_all_windows(dirs, methods, progress=settings.progress, workers=settings.jobs)
+    targets = {scene: series_targets(d, list(LABEL_VARIANTS)) for scene, d in dirs.items()}
+    by_label = {}
+    for n, (label, after_slip) in enumerate(LABEL_VARIANTS.items()):
+        own = windows if label == "pseudo" else {
+            m: relabel(w, {i: t[n] for i, t in targets[DATASET_OF_METHOD[m]].items()}) for m, w in windows.items()}
+        study = run_study(dirs, methods=methods, quick=settings.quick, max_train=b["max_train"],
+                          grid_max=b["grid_max"], progress=settings.progress, after_slip=after_slip,
+                          workers=settings.jobs, label=label, windows=own)
         where = out if label == "pseudo" else out / label
         by_label[label] = _write(study, where, b, settings, after_slip)
     written = by_label.pop("pseudo")

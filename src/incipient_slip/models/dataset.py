@@ -80,8 +80,9 @@ def series_index(path: Path) -> int:
         raise DatasetError(f"{path}: file name is not series_NNNNN.npz") from None
 
 
-def load_series(path: str | Path) -> Series:
-    """Return one series; a missing key is an error naming the file and key."""
+def load_series(path: str | Path, streams: bool = True) -> Series:
+    """Return one series; a missing key is an error naming the file and key. `streams` False leaves
+    the sensor streams (P_AC, electrodes) unread and empty: what labels need is read alone."""
     path = Path(path)
     try:
         data = np.load(path, allow_pickle=False)
@@ -100,8 +101,8 @@ def load_series(path: str | Path) -> Series:
             index=series_index(path),
             material=str(data["material"]),
             injection=bool(data["injection"]) if "injection" in data.files else True,
-            pac_counts=np.asarray(data["pac_counts"]),
-            electrode_counts=np.asarray(data["electrode_counts"]),
+            pac_counts=np.asarray(data["pac_counts"]) if streams else np.zeros(0, np.int16),
+            electrode_counts=np.asarray(data["electrode_counts"]) if streams else np.zeros((0, 19), np.uint16),
             mocap_t_s=np.asarray(data["mocap_t_s"], dtype=np.float64),
             mocap_y_mm=np.asarray(data["mocap_y_mm"], dtype=np.float64),
             period_end_s=np.asarray(data["period_end_s"], dtype=np.float64),

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import hashlib
 import time
+import dataclasses
 from dataclasses import dataclass, field
 from itertools import product
 from pathlib import Path
@@ -145,6 +146,29 @@ def load_window_sets(data_dir: str | Path, specs, min_window_s: float | None = N
     return [cache.cached("windows", cache.digest("windows-1", data_hash, repr(spec), min_window_s, after_slip,
                                                  repr(label), code), lambda i=i: compute()[i])
             for i, spec in enumerate(specs)]
+
+
+def series_targets(data_dir: str | Path, labels) -> dict[int, list]:
+    """Return {series index: [the per-period target of each label]} of the series with a detected
+    gross slip (those that have windows), reading only what labels need, no sensor stream."""
+    rules = [label_rule(label) for label in labels]
+    out = {}
+    for path in ds.series_paths(data_dir):
+        s = ds.load_series(path, streams=False)
+        lab = label_series(s)
+        if lab.gross_slip_index >= 0:
+            out[s.index] = [training_labels(s, lab, rule) for rule in rules]
+    return out
+
+
+def relabel(ws: WindowSet, targets: dict) -> WindowSet:
+    """Return the same windows (features, series, periods) with the target of another label
+    ({series index: per-period target}, `series_targets`): no feature is computed again."""
+    y = np.empty(len(ws.y), dtype=np.float64)
+    for i in np.unique(ws.series):
+        rows = ws.series == i
+        y[rows] = targets[int(i)][ws.period[rows]]
+    return dataclasses.replace(ws, y=y.astype(ws.y.dtype, copy=False))
 
 
 def _no_windows(data_dir, spec) -> ds.DatasetError:
