@@ -67,10 +67,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--tune-k", metavar="K1,K2,...", help="first run injection over these gains")
     parser.add_argument("--start", choices=("fork", "exec"), default="fork",
                         help="fork nodes from a pre-imported parent (default) or exec the launch command")
-    parser.add_argument("--labels", nargs="+", choices=LABELS, default=list(LABELS),
+    parser.add_argument("--labels", nargs="+", choices=LABELS,
                         help="the training labels whose shipped models run the Table (default both: the "
                         "paper's pseudo label is the Table, measured-ratio rows beside it; docs/estimation.md)")
-    parser.add_argument("--label-methods", nargs="+", choices=TABLE_METHODS[1:], default=list(LABEL_METHODS),
+    parser.add_argument("--label-methods", nargs="+", choices=TABLE_METHODS[1:],
                         help="the methods the other labels run (default injection)")
     parser.add_argument("--model", type=Path, metavar="FILE",
                         help="EXTENSION: run only the one --methods method with FILE in its "
@@ -254,16 +254,22 @@ def plot_traces(results: dict[str, list[dict]], path: Path) -> None:
     save(fig, path)
 
 
+def sweep_lines(sweep: dict) -> list:
+    """Return [(line name, method, {s_d: row})] of a sweep: the paper's label, then each other label."""
+    out = [(METHOD_LABELS[m], m, sweep["rows"][m]) for m in TABLE_METHODS if m in sweep["rows"]]
+    return out + [(f"{METHOD_LABELS[m]}, {label} label", m, by_sd) for label, rows in sweep.get("labels", {}).items()
+                  for m, by_sd in rows.items()]
+
+
 def plot_sweep(sweep: dict, path: Path) -> None:
-    """Success rate, steps and final F_N against the target s_d, one line per method."""
+    """Success rate, steps and final F_N against the target s_d, one line per method and label."""
     plt = pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
-    for m in TABLE_METHODS:
-        if m not in sweep:
-            continue
-        xs = sorted(float(x) for x in sweep[m])
-        rows = [sweep[m][repr(x)] if repr(x) in sweep[m] else sweep[m][str(x)] for x in xs]
-        style = dict(marker="o", lw=2.2 if m == "injection" else 1.0, label=METHOD_LABELS[m])
+    for name, m, by_sd in sweep_lines(sweep):
+        xs = sorted(float(x) for x in by_sd)
+        rows = [by_sd[repr(x)] if repr(x) in by_sd else by_sd[str(x)] for x in xs]
+        style = dict(marker="o", lw=2.2 if m == "injection" else 1.0, label=name,
+                     ls="--" if name != METHOD_LABELS[m] else "-")
         axes[0].plot(xs, [r["success_rate"] for r in rows], **style)
         axes[1].plot(xs, [r["steps_mean"] for r in rows], **style)
         axes[2].plot(xs, [r["fn_mean"] for r in rows], **style)
@@ -382,17 +388,21 @@ def run(settings: Settings) -> dict:
     if settings.options.get("sweep"):
         t1 = time.monotonic()
         sweep_methods = [m for m in c["methods"] if m != "none"]
-        specs = [s for sd in sweep_targets(settings)
-                 for s in make_specs(sweep_methods, c["sweep_runs"], sd, c["k"], c["steps"],
-                                     work / "sweep", "sweep")]
+        specs = [s for label in ["pseudo"] + other for sd in sweep_targets(settings)
+                 for s in make_specs(sweep_methods if label == "pseudo" else label_methods, c["sweep_runs"], sd,
+                                     c["k"], c["steps"], work / "sweep", "sweep", label=label)]
         done = runner.run(specs, _progress(len(specs), t1, settings.progress))
-        sweep = {m: {repr(sd): {k: v for k, v in aggregate(
-                     [s for s in done if s["method"] == m and s["s_d"] == sd]).items() if k != "run_scores"}
-                     for sd in sweep_targets(settings)} for m in sweep_methods}
-        results["sweep"] = {"runs": c["sweep_runs"], "k": c["k"], "rows": sweep,
+
+        def rows_of(label, methods):
+            got = [s for s in done if s.get("label", "pseudo") in ((label, "") if label == "pseudo" else (label,))]
+            return {m: {repr(sd): {k: v for k, v in aggregate(
+                        [s for s in got if s["method"] == m and s["s_d"] == sd]).items() if k != "run_scores"}
+                        for sd in sweep_targets(settings)} for m in methods}
+        results["sweep"] = {"runs": c["sweep_runs"], "k": c["k"], "rows": rows_of("pseudo", sweep_methods),
+                            "labels": {label: rows_of(label, label_methods) for label in other},
                             "wall_s": round(time.monotonic() - t1, 1)}
     if "sweep" in results:
-        plot_sweep(results["sweep"]["rows"], settings.figures / "stab_sweep.png")
+        plot_sweep(results["sweep"], settings.figures / "stab_sweep.png")
     return results
 
 
@@ -505,7 +515,8 @@ def render_sweep(sweep: dict | None) -> str:
     if not sweep:
         return "(not run yet: `slip reproduce stabilization --sweep`)"
     rows_s = sweep["rows"]
-    sds = sorted({float(x) for m in rows_s for x in rows_s[m]})
+    lines = sweep_lines(sweep)
+    sds = sorted({float(x) for _, _, by_sd in lines for x in by_sd})
     out = []
     for metric, label, spec in (("success_rate", "success rate", ".2f"),
                                 ("steps_mean", "steps (mean)", ".0f"),
@@ -514,17 +525,20 @@ def render_sweep(sweep: dict | None) -> str:
         out += [f"**{label}** ({sweep['runs']} runs per point, k = {sweep['k']}, simulated rig)", "",
                 "| method | " + " | ".join(f"s_d {x:g}" for x in sds) + " |",
                 "|---|" + "---|" * len(sds)]
-        for m in TABLE_METHODS:
-            if m in rows_s:
-                cells = [fmt(rows_s[m].get(repr(x), {}).get(metric), spec) for x in sds]
-                out.append(f"| {METHOD_LABELS[m]} | " + " | ".join(cells) + " |")
+        for name, _, by_sd in lines:
+            cells = [fmt(by_sd.get(repr(x), {}).get(metric), spec) for x in sds]
+            out.append(f"| {name} | " + " | ".join(cells) + " |")
         out.append("")
     inj_err = [rows_s.get("injection", {}).get(repr(x), {}).get("tracking_error", math.nan) for x in sds]
     n_success = sum(r.get("success_rate", 0) > 0 for m in rows_s for r in rows_s[m].values())
     out += ["Reading it (simulated rig):", ""]
     if n_success == 0:
-        out.append("* No method succeeds at any s_d, so the paper's prediction (electrodes failing "
-                   "above 0.7) cannot be tested on this simulated rig.")
+        out.append("* With the paper's label no method succeeds at any s_d, so the paper's prediction "
+                   "(electrodes failing above 0.7) cannot be tested with it on this simulated rig.")
+    for name, _, by_sd in lines[len([m for m in TABLE_METHODS if m in rows_s]):]:
+        held = [x for x in sds if by_sd.get(repr(x), {}).get("success_rate", 0) >= 0.5]
+        out.append(f"* {name}: holds in at least half the runs at s_d " + (", ".join(f"{x:g}" for x in held) or "none")
+                   + " of " + ", ".join(f"{x:g}" for x in sds) + ".")
     if np.isfinite(inj_err).any():
         out.append(f"* Tracking error |ŝ − s_d| of injection over s_d: {fmt(np.nanmin(inj_err), '.3f')}"
                    f"–{fmt(np.nanmax(inj_err), '.3f')}.")

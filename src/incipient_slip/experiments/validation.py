@@ -144,8 +144,8 @@ def closed_loop(method: str, params: dict, material: str, seed: int, model, step
 
 
 SWEEP_SD = (0.3, 0.5, 0.7, 0.8)
-CONTROLLED = tuple(m for m in TABLE_METHODS if m != "none") + ("oracle",)
-LABEL_METHODS = ("injection", "e10", "e19")     # the rows of another label than the paper's   # the methods that act on F_N
+CONTROLLED = tuple(m for m in TABLE_METHODS if m != "none") + ("oracle",)   # the methods that act on F_N
+LABEL_METHODS = ("injection", "e10", "e19")     # the rows of another label than the paper's
 # stage-1 refit per point: (collection series, no-action runs per material, evaluations); the second
 # only when the first cannot meet T1-T4 (an open-loop rule, the same for every point)
 REFITS = ((25, 2, 25), (50, 3, 40))
@@ -262,7 +262,7 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
     targets = series_targets(dirs["paper"], list(rows.values()))
     errors = label_error_by_fn(dirs["paper"], list(rows.values()))
     for n, (key, rule) in enumerate(rows.items()):
-        methods = METHODS if key == "pseudo" else LABEL_METHODS
+        methods = METHODS if key == "pseudo" else row_methods(key, rows)
         own = windows if key == "pseudo" else {
             m: relabel(windows[m], {i: t[n] for i, t in targets.items()}) for m in methods}
         study = run_study(dirs, methods=methods, quick=True, max_train=2000, grid_max=600, progress=False,
@@ -275,7 +275,7 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
                "models": {m: r.model for m, r in study.results.items()}}
         row["runs"] = {method: [closed_loop(method, scene.params, mats[j % len(mats)], series_seed(seed + 2, j),
                                             row["models"].get(method), steps) for j in range(runs)]
-                       for method in (TABLE_METHODS + ("oracle",) if key == "pseudo" else LABEL_METHODS)}
+                       for method in (TABLE_METHODS + ("oracle",) if key == "pseudo" else row_methods(key, rows))}
         by_label[key] = row
     models = by_label["pseudo"].pop("models")
     table = by_label["pseudo"].pop("runs")
@@ -294,6 +294,15 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
             "sweep": sweep,
             "consistent": consistent, "rmse": by_label["pseudo"]["rmse"], "top10": by_label["pseudo"]["top10"],
             "runs": table, "labels": by_label, "seconds": time.perf_counter() - t0}
+
+
+def row_methods(key: str, rows: dict) -> tuple:
+    """The methods a label row runs: the answer's three, but where a lag-identified row exists, the
+    row without the lag runs injection alone (it shows what an unidentified lag does to the method;
+    the electrodes slide with every label: docs/validation.md)."""
+    if key == "measured-ratio" and "measured-ratio, lag identified" in rows:
+        return ("injection",)
+    return LABEL_METHODS
 
 
 def label_rows(params: dict) -> dict:
@@ -476,7 +485,10 @@ def execute(p: Plan, settings) -> tuple[dict, dict, dict]:
 
     done, joint_done, refit_only = {}, {}, {}
     with open_client(p.scheduler, p.workers) as client:
-        futures = ([table_future(n, POINTS.get(n, {})) for n in p.names]
+        # the longest tasks first (a point whose friction limit lags runs one label row more), so
+        # that the last task to finish is a short one
+        names = sorted(p.names, key=lambda n: -float(POINTS.get(n, {}).get("stick_slip.friction_limit_lag_s", 0.0)))
+        futures = ([table_future(n, POINTS.get(n, {})) for n in names]
                    + [table_future(n, p.grid[n]) for n in p.sweep_at])
         futures += [client.submit(refit_task, n, ov, settings.seed, p.refits,
                                   key=f"refit-{_slug(n)}-{settings.seed}", pure=False)
@@ -763,7 +775,7 @@ def render_answer(results: dict) -> str:
         for key, table, _ in label_tables(fitted)[1:]:
             i = table["injection"]
             lines[-1] += (f" With the {key} label: injection {i['success']:.1f} (y {i['y']:.2f} mm, F_N {i['fn']:.2f} kPa), "
-                          f"E10 {table['e10']['success']:.1f}, E19 {table['e19']['success']:.1f}.")
+                          f"E10 {_success(table.get('e10'))}, E19 {_success(table.get('e19'))}.")
         for key, row in (fitted.get("labels") or {}).items():
             lines += ["", f"*Estimation at the fitted point, {key} label* (held-out series of the point's data set; "
                       "RMSE against the model's own label / against the true load ratio): " + ", ".join(
@@ -781,12 +793,14 @@ def render_answer(results: dict) -> str:
         for n, p in ok.items():
             for key, table, bias in label_tables(p):
                 lines.append(f"| {n} | {key} | " + " | ".join(
-                    f"{(p['table'] if m == 'oracle' else table)[m]['success']:.1f}" for m in ANSWER_METHODS)
+                    _success((p['table'] if m == 'oracle' else table).get(m)) for m in ANSWER_METHODS)
                     + f" | {bias} |")
         keys = list(dict.fromkeys(key for p in ok.values() for key, _, _ in label_tables(p)))
         for m in ANSWER_METHODS:
             for key in (keys if m != "oracle" else ["pseudo"]):
-                with_key = {n: t for n, p in ok.items() for k, t, _ in label_tables(p) if k == key}
+                with_key = {n: t for n, p in ok.items() for k, t, _ in label_tables(p) if k == key and m in t}
+                if not with_key:
+                    continue
                 held = [n for n, t in with_key.items() if t[m]["success"] >= 0.8]
                 who = LABELS[m].split(" (")[0] + ("" if m == "oracle" else f" ({key})")
                 lines += ["", f"* {who} holds (success >= 0.8) at {len(held)} of {len(with_key)} points"
@@ -801,6 +815,10 @@ def label_tables(p: dict) -> list:
             else _label_bias(p.get("fit", {})))]
     return out + [(key, row["table"], _bias(row["label_error_by_fn"])) for key, row in rows.items()
                   if key != "pseudo" and row.get("table")]
+
+
+def _success(row: dict | None) -> str:
+    return f"{row['success']:.1f}" if row else "–"
 
 
 def _bias(rows) -> str:
