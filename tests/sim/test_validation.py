@@ -74,6 +74,7 @@ def test_the_answer_has_a_row_per_label_and_counts_each_label_on_its_own_points(
     assert "injection (measured-ratio) holds (success >= 0.8) at 2 of 2 points" in text
     assert "With the measured-ratio label: injection 1.0" in text
     assert "injection 0.150 / 0.160" in text
+    assert "with the point's own friction lag: 0 where it has none, identified where it has one) holds at 2 of 2" in text
 
 
 def test_a_point_with_a_friction_lag_also_runs_the_label_with_that_lag_identified():

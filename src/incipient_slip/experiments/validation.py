@@ -805,6 +805,15 @@ def render_answer(results: dict) -> str:
                 who = LABELS[m].split(" (")[0] + ("" if m == "oracle" else f" ({key})")
                 lines += ["", f"* {who} holds (success >= 0.8) at {len(held)} of {len(with_key)} points"
                           + (": " + "; ".join(held) if held and len(held) < len(with_key) else "")]
+        own = {n: dict((k, t) for k, t, _ in label_tables(p)) for n, p in ok.items()}
+        own = {n: t.get("measured-ratio, lag identified") or t.get("measured-ratio") for n, t in own.items()}
+        own = {n: t for n, t in own.items() if t and "injection" in t}
+        if own:
+            held = [n for n, t in own.items() if t["injection"]["success"] >= 0.8]
+            missed = {n: t["injection"]["success"] for n, t in own.items() if n not in held}
+            lines += ["", f"* injection (measured-ratio with the point's own friction lag: 0 where it has none, "
+                      f"identified where it has one) holds at {len(held)} of {len(own)} points"
+                      + ("; the others: " + "; ".join(f"{n} {v:.1f}" for n, v in missed.items()) if missed else "")]
     return "\n".join(lines)
 
 
