@@ -116,3 +116,31 @@ def test_train_names_a_bad_label_input_and_exits_2(fake_injection_dir, tmp_path,
                 "--out", str(tmp_path / "m.npz"), *argv]) == 2
     err = capsys.readouterr().err
     assert says in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("text, says", [
+    ("stick_slip: [1, 2]\n", "no stick_slip.friction_limit_lag_s"),
+    ("stick_slip:\n  friction_limit_lag_s: {value: 700, unit: ms}\n", "is in 'ms'"),
+    ("stick_slip:\n  friction_limit_lag_s: {value: abc, unit: s}\n", "'abc' is not a finite number"),
+    ("stick_slip:\n  friction_limit_lag_s: .inf\n", "not a finite number"),
+    ("stick_slip: {friction_limit_lag_s: [\n", "not YAML (line"),
+])
+def test_a_bad_overlay_is_named_in_one_line(fake_injection_dir, tmp_path, capsys, text, says):
+    overlay = tmp_path / "overlay.yaml"
+    overlay.write_text(text)
+    assert run(["train", "--method", "e4", "--data", str(fake_injection_dir), "--quick", "--label",
+                "measured-ratio", "--params", str(overlay), "--out", str(tmp_path / "m.npz")]) == 2
+    err = capsys.readouterr().err
+    assert says in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_evaluate_names_each_models_label_and_warns_when_they_differ(fake_injection_dir, tmp_path, capsys):
+    for label in ("pseudo", "measured-ratio"):
+        assert run(["train", "--method", "e4", "--data", str(fake_injection_dir), "--quick", "--label", label,
+                    "--out", str(tmp_path / f"{label}.npz")]) == 0
+    capsys.readouterr()
+    assert run(["evaluate", "--data", str(fake_injection_dir), "--model", str(tmp_path / "pseudo.npz"),
+                "--model", str(tmp_path / "measured-ratio.npz")]) == 0
+    out, err = capsys.readouterr()
+    assert "pseudo" in out and "measured-ratio" in out.splitlines()[-1]
+    assert "different labels" in err

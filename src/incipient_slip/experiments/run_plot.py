@@ -135,8 +135,9 @@ def plot_run(summary: dict, path: Path) -> Path:
 
     seed = summary.get("seed", "?")
     material = summary.get("material") or "scene default"
-    model = (f", model {summary['model']}" if summary.get("model") else
-             f", {summary['label']} label" if summary.get("label") and method != "none" else "")
+    label = f"{summary['label']} label" if summary.get("label") and method != "none" else ""
+    model = ", ".join(x for x in (f"model {summary['model']}" if summary.get("model") else "", label) if x)
+    model = f", {model}" if model else ""
     fig.suptitle(f"Stabilization run, {SOURCE_NOTES.get(rig, f'rig {rig}')}\n"
                  f"method {METHOD_LABELS.get(method, method)}{model}, s_d {s_d if s_d is not None else '?'}, "
                  f"k {summary.get('k', '?')}, material {material}, seed {seed}\n{outcome_line(summary)}",

@@ -55,9 +55,11 @@ class RunSpec:
     def launch_args(self) -> dict[str, str]:
         args = {"method": self.method, "seed": str(self.seed), "material": self.material,
                 "s_d": repr(float(self.s_d)), "k": repr(float(self.k)), "steps": str(self.steps),
-                "summary": str(self.summary_path), "quiet": "true", "label": self.label}
-        if self.model:
+                "summary": str(self.summary_path), "quiet": "true"}
+        if self.model:                       # the file's own label
             args["model"] = self.model
+        else:
+            args["label"] = self.label
         return args
 
     @property

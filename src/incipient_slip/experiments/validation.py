@@ -831,7 +831,8 @@ def _success(row: dict | None) -> str:
 
 
 def _bias(rows) -> str:
-    return ", ".join(f"{r['bin']} {r['mean']:+.2f}" for r in rows or ()) or "–"
+    # a mean that rounds to zero reads +0.00, never -0.00
+    return ", ".join(f"{r['bin']} {r['mean'] if abs(r['mean']) >= 0.005 else 0.0:+.2f}" for r in rows or ()) or "–"
 
 
 def task_times(pts: dict, cores: int = 16) -> str:

@@ -37,8 +37,8 @@ def register(subparsers) -> None:
     p.add_argument("--components", type=int, default=1000, help="Nystroem landmarks (default 1000)")
     p.add_argument("--window-s", type=float, default=1.0, help="window T in seconds (default 1.0)")
     p.add_argument("--after-slip", default="zero", choices=("zero", "drop"),
-                   help="windows after the first gross slip: kept (the pseudo label gives them 0, "
-                   "the paper's rule; measured-ratio their own ratio) or left out")
+                   help="windows after the first gross slip: zero (default) keeps them (the pseudo label "
+                   "gives them 0, the paper's rule; measured-ratio their own ratio), drop leaves them out")
     p.add_argument("--label", default="pseudo", choices=LABELS,
                    help="training target: pseudo, the paper's pseudo-stick ratio (default; F_T^slip "
                    "of the first onset); measured-ratio, 1 - F_T / (mu F_N) with mu the largest "
@@ -143,16 +143,25 @@ def _label_rule(args) -> LabelRule:
 
 def friction_lag_of_overlay(path: Path) -> float:
     """Return stick_slip.friction_limit_lag_s of an identified rig's params overlay (seconds)."""
+    import math
     import yaml
     try:
         doc = yaml.safe_load(Path(path).read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise ValueError(f"--params {path}: cannot read the overlay ({exc})") from None
-    entry = ((doc or {}).get("stick_slip") or {}).get("friction_limit_lag_s") if isinstance(doc, dict) else None
-    value = entry.get("value") if isinstance(entry, dict) else entry
-    if not isinstance(value, (int, float)) or isinstance(value, bool):
-        raise ValueError(f"--params {path}: no stick_slip.friction_limit_lag_s value (the lag protocol of "
+    except OSError as exc:
+        raise ValueError(f"--params {path}: cannot read the overlay ({exc.strerror or exc})") from None
+    except yaml.YAMLError as exc:
+        where = getattr(exc, "problem_mark", None)
+        raise ValueError(f"--params {path}: not YAML" + (f" (line {where.line + 1})" if where else "")) from None
+    section = doc.get("stick_slip") if isinstance(doc, dict) else None
+    entry = section.get("friction_limit_lag_s") if isinstance(section, dict) else None
+    if entry is None:
+        raise ValueError(f"--params {path}: no stick_slip.friction_limit_lag_s (the lag protocol of "
                          "launch identify.yaml measures it); give --friction-lag-s instead")
+    value, unit = (entry.get("value"), entry.get("unit", "s")) if isinstance(entry, dict) else (entry, "s")
+    if unit != "s":
+        raise ValueError(f"--params {path}: stick_slip.friction_limit_lag_s is in {unit!r}; the overlay's unit is s")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"--params {path}: stick_slip.friction_limit_lag_s = {value!r} is not a finite number of seconds")
     return float(value)
 
 
@@ -186,7 +195,7 @@ def _evaluate(args) -> int:
     from .estimator_core import load_model
     from .evaluation import paired_tests, series_scores
     from .training import held_out_series, load_windows
-    scores, names = {}, []
+    scores, names, labels = {}, [], {}
     test_series = None
     for path in args.model:
         model = load_model(path)
@@ -204,9 +213,15 @@ def _evaluate(args) -> int:
         name = model.method if model.method not in scores else f"{model.method}:{path.name}"
         scores[name] = series_scores(name, te.y, model.predict(te.X), te.series, te.material)
         names.append(name)
-    print(f"held-out series: {len(test_series)}  (RMSE per series; top-10 % = RMSE over each "
-          "series' 10 % largest |error|)")
-    print(f"{'model':<22}{'RMSE':>16}{'top-10 % RMSE':>18}{'p(RMSE)':>10}{'p(top10)':>10}")
+        labels[name] = str(rule_of_header(model.header))
+    print(f"held-out series: {len(test_series)}  (RMSE per series against each model's own label; "
+          "top-10 % = RMSE over each series' 10 % largest |error|)")
+    if len(set(labels.values())) > 1:
+        print("WARNING: the models were trained on different labels (" + "; ".join(f"{n}: {v}" for n, v in labels.items())
+              + "): each is scored against its own, so the RMSEs and p-values compare different targets",
+              file=sys.stderr)
+    width = max(22, *(len(n) + 2 for n in names))
+    print(f"{'model':<{width}}{'RMSE':>16}{'top-10 % RMSE':>18}{'p(RMSE)':>10}{'p(top10)':>10}  label")
     t1 = paired_tests(scores, names[0], "rmse") if len(names) > 1 else {}
     t2 = paired_tests(scores, names[0], "top10_rmse") if len(names) > 1 else {}
     out = {}
@@ -215,8 +230,9 @@ def _evaluate(args) -> int:
         out[n] = {**s, "p_rmse_holm": t1.get(n, {}).get("p_holm"), "p_top10_holm": t2.get(n, {}).get("p_holm")}
         p1 = f"{t1[n]['p_holm']:.2g}{t1[n]['stars']}" if n in t1 else "-"
         p2 = f"{t2[n]['p_holm']:.2g}{t2[n]['stars']}" if n in t2 else "-"
-        print(f"{n:<22}{s['rmse_mean']:>8.3f} ± {s['rmse_std']:.3f}{s['top10_mean']:>10.3f} ± "
-              f"{s['top10_std']:.3f}{p1:>10}{p2:>10}")
+        out[n]["label"] = labels[n]
+        print(f"{n:<{width}}{s['rmse_mean']:>8.3f} ± {s['rmse_std']:.3f}{s['top10_mean']:>10.3f} ± "
+              f"{s['top10_std']:.3f}{p1:>10}{p2:>10}  {labels[n]}")
     if args.json:
         args.json.write_text(json.dumps(out, indent=1))
     return 0

@@ -56,6 +56,8 @@ LATE_S = 0.05                 # ... and over its last 50 ms
 # "pseudo": the paper's rule (default); "measured-ratio": measured quantities under a per-period F_N;
 # "true-ratio": the simulator's truth (an extension no lab can measure)
 LABELS = ("pseudo", "measured-ratio", "true-ratio")
+SHIPPED_LABELS = ("pseudo", "measured-ratio")   # models/<method>.npz and models/measured-ratio/<method>.npz
+DEFAULT_LABEL = "measured-ratio"                # the estimator's shipped model when nothing says otherwise
 
 
 @dataclass(frozen=True)

@@ -3,8 +3,8 @@
     python -m incipient_slip.nodes.estimator method:=injection
 
 Loads `model` (default the shipped model of `method` trained on `label`: `models/<method>.npz`
-for the paper's pseudo label, `models/measured-ratio/<method>.npz`; its feature spec must fit the
-stream, its header's label must be `label`, and its window is `window_s`) and reads `/biotac/pac` (vibration methods) or `/biotac/slow` (electrode
+for the paper's pseudo label, `models/measured-ratio/<method>.npz`, the default; its feature spec
+must fit the stream, its header's label must be `label` when one is given, and its window is `window_s`) and reads `/biotac/pac` (vibration methods) or `/biotac/slow` (electrode
 methods). The scheduling by stamps, validity after seq gaps and stale streams, and the
 wall-clock watchdog are `models.estimator_core.PeriodEstimator`; this node wires it.
 
@@ -27,7 +27,7 @@ from incipient_slip.models.estimator_core import (
     ModelFileError, PeriodEstimator, default_model_path, load_model,
 )
 from incipient_slip.models.features import METHODS
-from incipient_slip.models.labels import LABELS, rule_of_header
+from incipient_slip.models.labels import DEFAULT_LABEL, LABELS, SHIPPED_LABELS, rule_of_header
 
 
 class Estimator(Node):
@@ -38,9 +38,10 @@ class Estimator(Node):
     OUTPUTS = {SlipEstimate.TOPIC: SlipEstimate}
     PARAMS = {
         "method": Param("injection", choices=METHODS, help="estimation method"),
-        "label": Param("", choices=("",) + LABELS, help="the training label of the shipped model (docs/estimation.md): "
-                       "pseudo, the paper's (models/<method>.npz); measured-ratio (models/measured-ratio/); "
-                       '"": pseudo, or what model:= was trained on'),
+        "label": Param("", choices=("",) + LABELS, help="the training label of the model (docs/estimation.md): "
+                       f"pseudo, the paper's (models/<method>.npz); measured-ratio (models/measured-ratio/); \"\": "
+                       f"{DEFAULT_LABEL}, or what model:= was trained on; with model:=, a label that differs "
+                       "from the file's is refused"),
         "model": Param("", help='model file ("": the shipped model of method and label)'),
         "window_s": Param(0.0, lo=0.0, help="0: the model's window; otherwise must equal it (s)"),
         "stale_after_s": Param(0.05, lo=0.0, help="newest sample older than this before a boundary: stale (s)"),
@@ -53,7 +54,10 @@ class Estimator(Node):
     def __init__(self, **kwargs):
         super().__init__("estimator", **kwargs)
         label = self.param("label")
-        path = self.param("model") or default_model_path(self.param("method"), label or "pseudo")
+        if not self.param("model") and label and label not in SHIPPED_LABELS:
+            raise ParamError(f"node {self.name!r}: no shipped models are trained on label {label!r} (shipped: "
+                             f"{', '.join(SHIPPED_LABELS)}); train one (slip train --label {label}) and pass model:=FILE")
+        path = self.param("model") or default_model_path(self.param("method"), label or DEFAULT_LABEL)
         try:
             model = load_model(path, method=self.param("method"), window_s=self.param("window_s") or None)
         except ModelFileError as exc:     # run_node reports a ParamError in one line, exit 2

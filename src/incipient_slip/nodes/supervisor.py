@@ -27,6 +27,7 @@ from pathlib import Path
 from incipient_slip import control
 from incipient_slip.graph.params import Param
 from incipient_slip.graph.runtime import Node, run_node
+from incipient_slip.models.labels import DEFAULT_LABEL
 from incipient_slip.messages import RUN_EVENT_KINDS, ActuatorState, BiotacSlow, GripCommand, ObjectPose, PztState, RobotState, RunEvent, SimTruth, SlipEstimate
 
 POSITIVE = dict(lo=1e-3)
@@ -63,7 +64,8 @@ class Supervisor(Node):
         "method": "", "s_d": Param(float("nan"), finite=False), "k": Param(float("nan"), finite=False),
         "seed": 0, "material": "", "rig": "sim",
         "model": Param("", help="the estimator's model file, recorded in the summary ('' = the shipped one)"),
-        "label": Param("", help="the training label of the shipped model (label:=), recorded in the summary ('' = model:='s own)"),
+        "label": Param("", help="the training label of the model (label:=), recorded in the summary ('' = the shipped "
+                       "default, or model:='s own)"),
         "rig_params": Param("", help="the simulated rig's params overlay, recorded in the summary"),
         "recording": Param("", help="the replayed recording (rig:=replay), recorded in the summary"),
     }
@@ -98,6 +100,13 @@ class Supervisor(Node):
         self.truth_wait_since: float | None = None
         self.create_timer(0.01, self.watchdog)
         self.on_shutdown(lambda: self.finish(control.Verdict("interrupted", f"interrupted after {self.judge.steps} steps")))
+
+    def recorded_label(self) -> str:
+        """The model's training label as the summary records it: label:=, else the shipped default
+        when no model:= was given ('' with a model file: its header says)."""
+        if self.param("label") or self.param("model") or self.param("method") == "none":
+            return self.param("label")
+        return DEFAULT_LABEL
 
     def on_rig(self, record, stamp_ns: int, value: float) -> None:
         """A pose or F_N of the rig, on the period clock (held until the first tick, if need be)."""
@@ -164,7 +173,7 @@ class Supervisor(Node):
         j = self.judge
         j.end(verdict)
         self.summary = j.summary(pzt_on=self.pzt_on, wall_s=round(time.monotonic() - self.started, 3),
-                                 **{key: self.param(key) for key in RECORDED})
+                                 **{**{key: self.param(key) for key in RECORDED}, "label": self.recorded_label()})
         path = self.param("summary_path")
         if path and j.steps == 0 and Path(path).exists():
             path = ""       # a run that judged no period must not replace the last real run's summary
