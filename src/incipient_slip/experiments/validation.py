@@ -408,6 +408,10 @@ class Plan:
             lines.append("one-at-a-time points: none run and none kept (--keep RESULTS_JSON keeps a run's)")
         if self.joint:
             lines.append(f"joint set: {len(self.grid)} refits, the Table at each consistent one")
+        if self.names or self.joint:
+            lines.append(f"labels: pseudo (every method and the oracle); measured-ratio ({', '.join(LABEL_METHODS)}) at "
+                         "the fitted point and where the refit meets the targets, and with the point's friction lag "
+                         "as if identified where it has one (docs/estimation.md)")
         if self.sweep_at:
             lines.append(f"s_d sweep ({self.sweep_runs or 3} runs per cell) at: {', '.join(self.sweep_at)}")
         elif self.sweep_runs:

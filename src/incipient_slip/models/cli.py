@@ -110,10 +110,12 @@ def _train(args) -> int:
         raise ValueError(f"{out} exists (a model trained before); --out elsewhere, or --force to replace it")
     rule = _label_rule(args)
     spec = feature_spec(args.method, window_s=args.window_s)
-    ws = load_windows(args.data, spec, after_slip=args.after_slip, label=rule)
+    progress = sys.stderr.isatty()            # bars on a terminal, not in a log or a pipe
+    ws = load_windows(args.data, spec, after_slip=args.after_slip, label=rule, progress=progress)
     test_series = held_out_series(ws.series_materials())
     train, test = split_train_test(ws, test_series)
-    kw = dict(max_train=args.max_train, grid_max=args.grid_max, n_components=args.components, quick=args.quick)
+    kw = dict(max_train=args.max_train, grid_max=args.grid_max, n_components=args.components, quick=args.quick,
+              progress=progress)
     if args.workers or args.scheduler:
         with open_client(args.scheduler, args.workers) as client:
             res = train_model(train, args.kind, client=client, **kw)
@@ -205,7 +207,7 @@ def _evaluate(args) -> int:
                 raise ValueError(f"{path}: a vibrotactile model needs --data-no-injection")
             data = args.data_no_injection
         ws = load_windows(data, model.spec, after_slip=model.header.get("after_slip", "zero"),
-                          label=rule_of_header(model.header))
+                          label=rule_of_header(model.header), progress=sys.stderr.isatty())
         if test_series is None:
             test_series = held_out_series(ws.series_materials())
         _check_not_trained_on(path, model, ws, test_series, data, args.allow_train_overlap)
