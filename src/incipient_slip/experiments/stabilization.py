@@ -19,6 +19,7 @@ import numpy as np
 
 from incipient_slip import control
 from incipient_slip.errors import UsageError
+from incipient_slip.models.labels import SHIPPED_LABELS as LABELS
 from incipient_slip.paths import repo_root
 
 from .plots import METHOD_LABELS, SIM_LABEL, pyplot, save
@@ -32,8 +33,6 @@ RESULTS = "stab_results.json"       # in docs/figures/: the page's numbers, for 
 QUICK = ("2 runs per method (full 10), each the full 450 steps through the same node "
          "graph, so every run ends as a full run with its seed would; success rates are out of 2")
 
-# the labels of the shipped models (models/<method>.npz, models/measured-ratio/<method>.npz)
-LABELS = ("pseudo", "measured-ratio")
 # the methods the other labels run by default (the paper's method: `slip reproduce all` stays within
 # 10 minutes on 2 cores; --label-methods adds others, and docs/validation.md has every label's E10
 # and E19 over the uncertainty set)
@@ -318,6 +317,11 @@ def _progress(total: int, t0: float, show: bool):
     return report
 
 
+def of_label(summaries: list[dict], label: str) -> list[dict]:
+    """The run summaries of one training label (a summary before the label was recorded: pseudo)."""
+    return [s for s in summaries if (s.get("label") or "pseudo") == label]
+
+
 def _compact(summary: dict) -> dict:
     return {k: v for k, v in summary.items() if k != "traces"}
 
@@ -364,9 +368,9 @@ def run(settings: Settings) -> dict:
                                                       c["k"], c["steps"], work / "table", "table", label=label)]
     done = runner.run(specs, _progress(len(specs), t0, settings.progress))
     table_wall = time.monotonic() - t0
-    summaries = [s for s in done if s.get("label", "pseudo") in ("pseudo", "")]
+    summaries = of_label(done, "pseudo")
     for label in other:
-        got = [s for s in done if s.get("label") == label]
+        got = of_label(done, label)
         rows = table_rows({m: [s for s in got if s["method"] == m] for m in label_methods})
         print(f"\nStabilization Table with the {label} models, SIMULATED rig:")
         print(format_table_text(rows))
@@ -394,7 +398,7 @@ def run(settings: Settings) -> dict:
         done = runner.run(specs, _progress(len(specs), t1, settings.progress))
 
         def rows_of(label, methods):
-            got = [s for s in done if s.get("label", "pseudo") in ((label, "") if label == "pseudo" else (label,))]
+            got = of_label(done, label)
             return {m: {repr(sd): {k: v for k, v in aggregate(
                         [s for s in got if s["method"] == m and s["s_d"] == sd]).items() if k != "run_scores"}
                         for sd in sweep_targets(settings)} for m in methods}

@@ -260,7 +260,7 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
     # the features once (as run_study would read them); each other label only relabels the windows
     windows = load_all_windows(dirs, METHODS, progress=False)
     targets = series_targets(dirs["paper"], list(rows.values()))
-    errors = label_error_by_fn(dirs["paper"], list(rows.values()))
+    errors = label_error_by_fn(dirs["paper"], targets, len(rows))
     for n, (key, rule) in enumerate(rows.items()):
         methods = METHODS if key == "pseudo" else row_methods(key, rows)
         own = windows if key == "pseudo" else {
@@ -275,7 +275,7 @@ def point_task(name: str, overrides: dict, runs: int, n_series: int, steps: int,
                "models": {m: r.model for m, r in study.results.items()}}
         row["runs"] = {method: [closed_loop(method, scene.params, mats[j % len(mats)], series_seed(seed + 2, j),
                                             row["models"].get(method), steps) for j in range(runs)]
-                       for method in (TABLE_METHODS + ("oracle",) if key == "pseudo" else row_methods(key, rows))}
+                       for method in (TABLE_METHODS + ("oracle",) if key == "pseudo" else methods)}
         by_label[key] = row
     models = by_label["pseudo"].pop("models")
     table = by_label["pseudo"].pop("runs")
@@ -318,22 +318,20 @@ def label_rows(params: dict) -> dict:
     return rows
 
 
-def label_error_by_fn(data_dir, rules) -> list[list[dict]]:
-    """Return, per label rule, the label minus the simulator's true load ratio by F_N bin over every
-    period of the collection series (the label's own windows: after the first onset too; no model;
-    one pass that reads no sensor stream)."""
-    from incipient_slip.models.dataset import load_series, series_paths
-    from incipient_slip.models.labels import label_series, training_labels
+def label_error_by_fn(data_dir, targets: dict, n_labels: int) -> list[list[dict]]:
+    """Return, per label, the label minus the simulator's true load ratio by F_N bin over every
+    period of the collection series (the label's own windows: after the first onset too; no model).
+    `targets` is `models.training.series_targets` of the same set: only F_N and the truth are read."""
+    from incipient_slip.models.dataset import load_series, series_paths, series_index
 
-    pairs = [[] for _ in rules]
+    pairs = [[] for _ in range(n_labels)]
     for path in series_paths(data_dir):
-        series = load_series(path, streams=False)
-        lab = label_series(series)
-        if lab.gross_slip_index < 0:
+        if series_index(path) not in targets:           # no gross slip: no label
             continue
+        series = load_series(path, streams=False)
         truth = np.clip(np.nan_to_num(series.load_ratio_stick), 0.0, 1.0)
-        for out, rule in zip(pairs, rules):
-            out.extend(zip(series.normal_force_kpa.tolist(), (training_labels(series, lab, rule) - truth).tolist()))
+        for out, target in zip(pairs, targets[series.index]):
+            out.extend(zip(series.normal_force_kpa.tolist(), (target - truth).tolist()))
     return [cal.label_report(p) for p in pairs]
 
 
