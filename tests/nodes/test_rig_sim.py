@@ -137,7 +137,9 @@ def test_node_and_in_process_loop_give_identical_data_for_the_same_seed(graph):
     assert outs[8].normal_force_kpa == outs[7].normal_force_kpa          # the hold
     ticks = ctl.got[ActuatorState]
     assert [m.step_index for m in ticks] == list(range(steps))
-    assert [m.position_mm for m in ticks] == [o.actuator_mm for o in outs]
+    # the stage after the period's step (as the Zaber node reads it back): where the next period runs
+    assert [m.position_mm for m in ticks][:-1] == [o.actuator_mm for o in outs[1:]]
+    assert ticks[-1].position_mm > outs[-1].actuator_mm
     assert [m.stamp_ns for m in ticks] == [(k + 1) * 500_000_000 for k in range(steps)]
     truth = ctl.got[SimTruth]            # the simulator's truth of each period, before its tick
     assert [(m.period, m.stamp_ns) for m in truth] == [(k, (k + 1) * 500_000_000) for k in range(steps)]

@@ -25,8 +25,10 @@ ALLOWED = {
     # rig identification's protocols and fit: the paper's gross-slip rule (models.labels) and the clamps
     "identify": {"control", "models", "messages"},
     "nodes": {"graph", "messages", "models", "sim", "control", "devices", "identify"},
+    # a lab's workflow: collection sessions (launches) and recordings -> data sets
+    "lab": {"graph", "messages", "models", "sim", "control"},
     "experiments": {"nodes", "graph", "messages", "models", "sim", "control", "devices", "cluster", "identify"},
-    "cli": {"graph", "sim", "models", "experiments"},
+    "cli": {"graph", "sim", "models", "experiments", "lab"},
     "__init__": set(),
 }
 # an upward import with its reason; keep this list short

@@ -34,6 +34,8 @@ class Recorder(Node):
         "topics": Param([], help="topics to record; [] records every topic of the graph"),
         "compression": Param("zstd", choices=("zstd", "lz4", "none"), help="chunk compression"),
         "max_messages": Param(0, lo=0, help="end the node after this many (0: until stopped)"),
+        "metadata": Param({}, help="what the recording is (e.g. the series' rig, material, seed, injection; "
+                          "launch/collect.yaml sets it): written as the MCAP metadata record 'recording'"),
         "flush_s": Param(FLUSH_S, lo=0.01, hi=60.0,
                          help="longest a message waits in memory; a SIGKILL loses at most this"),
     }
@@ -44,7 +46,7 @@ class Recorder(Node):
         super().__init__("recorder", **kwargs)
         try:
             self.bag = BagWriter(self.param("path"), compression=self.param("compression"),
-                                 metadata={"recorder": self.name}, flush_s=self.param("flush_s"))
+                                 metadata={**self.param("metadata"), "recorder": self.name}, flush_s=self.param("flush_s"))
         except BagError as exc:   # run_node reports a ParamError in one line, exit code 2
             raise ParamError(f"node {self.name!r}: parameter 'path': {exc}") from None
         self.create_timer(self.param("flush_s"), self.bag.flush)   # when traffic stops

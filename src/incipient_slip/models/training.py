@@ -483,6 +483,10 @@ def train_model(ws: WindowSet, kind: str = "svr", max_train: int | None = 6000,
         raise ValueError(f"kind {kind!r} unknown; expected one of {', '.join(KINDS)}")
     t0 = time.perf_counter()
     X, y, groups = ws.X.astype(np.float64), ws.y, ws.series
+    if len(np.unique(groups)) < 2:        # the searches and the ridge's validation hold whole series out
+        raise ValueError(f"training needs windows of at least 2 series, got {len(np.unique(groups))} (after "
+                         "the held-out series: a material with n series keeps ceil(n / 10) of them for the test; "
+                         "collect at least 3 series per material)")
     report = {"kind": kind, "n_windows": int(len(y)), "n_series": int(len(np.unique(groups)))}
     grid_rows = []
     if kind in ("svr", "nystroem") and params is None:

@@ -1,5 +1,6 @@
-"""`slip dataset`: the simulated rig's command-line entry point (its calibration is the
-`calibration` experiment, `slip reproduce calibration`)."""
+"""`slip dataset --scene ...`: the simulated rig's data sets (its calibration is the `calibration`
+experiment, `slip reproduce calibration`). The `slip dataset` command itself is registered by
+`lab.cli`, which adds `--from-recordings` (a rig's recordings) beside this."""
 from __future__ import annotations
 
 import time
@@ -21,6 +22,8 @@ def cmd_dataset(args) -> int:
     from ..cluster import check_scheduler, check_workers, open_client
     from .dataset import write_dataset
 
+    if not args.scene or args.series is None:
+        raise UsageError("give --scene and --series (a simulated data set) or --from-recordings DIR")
     scene = _scene(args.scene, args.params)
     check_scheduler(args.scheduler)
     if args.series < 1:
@@ -49,11 +52,9 @@ def cmd_dataset(args) -> int:
     return 0
 
 
-def register(subparsers) -> None:
-    """Add `slip dataset` to the `slip` command."""
-    p = subparsers.add_parser(
-        "dataset", help="generate a simulated data set (paper protocol) into a directory",
-        description="Generate data-collection series on the simulated rig: per series 450 periods of "
+def add_arguments(p) -> None:
+    """The simulated data set's arguments of `slip dataset` (lab.cli registers the command)."""
+    p.description = ("Generate data-collection series on the simulated rig: per series 450 periods of "
         "500 ms, F_N redrawn each period from 1.1..5.9 kPa, the actuator stepping 23 mm in 450 steps. "
         "Writes meta.json + series_NNNNN.npz (format: docs/design.md). Series i uses material "
         "materials[i % n] and a seed derived from (--seed, i), so output is independent of --workers. "
@@ -61,10 +62,10 @@ def register(subparsers) -> None:
         "takes about a second, docs/performance.md); --dask runs the series as dask tasks on a "
         "LocalCluster, --scheduler tcp://HOST:PORT on a running dask cluster (--out then on a file "
         "system every worker can write).")
-    p.add_argument("--scene", required=True, help="scene name in scenes/ (paper, no_injection, ...) or a YAML path")
+    p.add_argument("--scene", help="scene name in scenes/ (paper, no_injection, ...) or a YAML path")
     p.add_argument("--params", metavar="OVERLAY", help="an identified rig's params overlay on the scene "
                    "(launch identify.yaml; docs/identification.md)")
-    p.add_argument("--series", type=int, required=True, help="number of series to write")
+    p.add_argument("--series", type=int, help="number of series to write")
     p.add_argument("--seed", type=int, default=0, help="data set seed (default 0)")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--materials", nargs="+", metavar="NAME", help="restrict to these materials (default: the scene's)")
@@ -76,4 +77,3 @@ def register(subparsers) -> None:
     p.add_argument("--steps", type=int, default=450, help="periods per series (default 450, the paper's)")
     p.add_argument("--overwrite", action="store_true", help="allow writing into a directory that holds a data set")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_dataset)
