@@ -26,6 +26,8 @@ class ForceSchedule(Node):
     PARAMS = {
         "seed": Param(0, lo=0, help="the series' seed: its F_N draws (the simulated rig's for the same seed)"),
         "steps": Param(450, lo=1, help="periods of the series"),
+        "wait_subscribers": Param(1, lo=0, help="started by hand: readers of /grip/command to wait for"),
+        "wait_timeout_s": Param(10.0, lo=0.0, help="longest wait for them before the first answer (s)"),
     }
 
     def __init__(self, **kwargs):
@@ -41,6 +43,11 @@ class ForceSchedule(Node):
         if k <= self.last:                       # a repeated or old tick: answered already
             self.warn(f"tick {k} after {self.last}: not answered again", throttle_s=1.0)
             return
+        if self.last < 0:                        # once: the first answer must not be lost
+            if self.readers:                     # the launch names them
+                self.wait_for_readers(self.param("wait_timeout_s"))
+            elif not self.pub.wait_for_subscribers(self.param("wait_subscribers"), self.param("wait_timeout_s")):
+                self.warn(f"too few readers of {self.pub.topic}; sending anyway")
         self.last = k
         nxt = self.forces[min(k + 1, len(self.forces) - 1)]
         self.pub.publish(GripCommand(normal_force_kpa=nxt, period=k, reason="collection schedule"))
