@@ -282,9 +282,12 @@ def _type_name(path, channel, schemas: dict) -> str:
     return name
 
 
-def read_bag(path: str | os.PathLike, topics: Iterable[str] | None = None) -> Iterator[BagRecord]:
+def read_bag(path: str | os.PathLike, topics: Iterable[str] | None = None, *,
+             file_order: bool = False) -> Iterator[BagRecord]:
     """The recorded messages of `topics` (all if None) in receive (log time) order.
 
+    file_order: in the order they were written instead: each topic's messages still in receive
+    order, the topics interleaved by chunk; about twice as fast (no merge across chunks).
     The file must be finished (summary and footer); an unfinished one is a BagError that
     points at `recover()`.
     """
@@ -293,7 +296,7 @@ def read_bag(path: str | os.PathLike, topics: Iterable[str] | None = None) -> It
         reader, summary = _reader(path, f)
         types = {cid: _type_name(path, ch, summary.schemas) for cid, ch in summary.channels.items()}
         try:
-            for _schema, channel, rec in reader.iter_messages(topics=wanted, log_time_order=True):
+            for _schema, channel, rec in reader.iter_messages(topics=wanted, log_time_order=not file_order):
                 yield BagRecord(channel.topic, types[channel.id], bytes(rec.data), rec.log_time,
                                 rec.publish_time, rec.sequence)
         except BagError:

@@ -23,6 +23,7 @@ per file and goes on with the others.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -80,7 +81,7 @@ def _by_topic(path) -> dict[str, list]:
     out: dict[str, list] = {t: [] for t in TOPICS}
     last_seq: dict[str, int] = {}
     try:
-        for rec in read_bag(path, TOPICS):
+        for rec in read_bag(path, TOPICS, file_order=True):      # per topic in receive order
             try:
                 msg = rec.message()
             except ValueError as exc:          # MessageError: the recorder never writes one, a tool might
@@ -341,27 +342,38 @@ def recordings_of(src: str | Path) -> tuple[list[tuple[Path, int]], list[str]]:
     return [(f, i) for i, f in enumerate(files)], []
 
 
+def _read_one(options: tuple, path: Path):
+    """(arrays, notes) of one recording, or the reason it cannot be a series (a worker's task)."""
+    from incipient_slip.models.labels import GROSS_SLIP_MM, gross_slip_travel_mm
+    spring_n_per_mm, normal_force = options
+    try:
+        data, notes = read_series(path, spring_n_per_mm=spring_n_per_mm, normal_force=normal_force)
+    except RecordingError as exc:
+        return exc.reason
+    travel = gross_slip_travel_mm(data["mocap_t_s"], data["mocap_y_mm"], data["period_end_s"])
+    notes.gross_slip = bool((travel >= GROSS_SLIP_MM).any())
+    return data, notes
+
+
 def import_recordings(src: str | Path, out: str | Path, *, spring_n_per_mm: float | None = None,
-                      normal_force: str = "auto", progress=None) -> ImportReport:
+                      normal_force: str = "auto", progress=None, workers: int | None = None) -> ImportReport:
     """Write the data set(s) of a directory of collection recordings; one per injection setting
-    present (`out` itself when there is one, else out/injection and out/no_injection)."""
+    present (`out` itself when there is one, else out/injection and out/no_injection). Recordings
+    are read by `workers` forked processes (default: all cores), in index order."""
     import json
-    import os
 
     from incipient_slip.models.dataset import DATASET_FORMAT, DATASET_VERSION
+    from incipient_slip.models.training import forked_map
     report = ImportReport()
     todo, report.not_collected = recordings_of(src)
     read: list = []
-    for path, index in todo:
-        try:
-            data, notes = read_series(path, spring_n_per_mm=spring_n_per_mm, normal_force=normal_force)
-        except RecordingError as exc:
-            report.dropped.append((str(path), exc.reason))
+    workers = min(len(todo), workers or os.cpu_count() or 1)
+    for (path, index), result in zip(todo, forked_map(_read_one, [p for p, _ in todo], workers,
+                                                       (spring_n_per_mm, normal_force))):
+        if isinstance(result, str):
+            report.dropped.append((str(path), result))
         else:
-            from incipient_slip.models.labels import GROSS_SLIP_MM, gross_slip_travel_mm
-            travel = gross_slip_travel_mm(data["mocap_t_s"], data["mocap_y_mm"], data["period_end_s"])
-            notes.gross_slip = bool((travel >= GROSS_SLIP_MM).any())
-            read.append((path, index, data, notes))
+            read.append((path, index, *result))
         if progress:
             progress(1)
     kinds = sorted({bool(d["injection"]) for _, _, d, _ in read}, reverse=True)
