@@ -227,7 +227,7 @@ def robot(fake, graph):
 
 
 def test_each_period_presses_towards_the_target_and_reports_it(robot):
-    ur, node, probe, nodes = robot()
+    ur, node, probe, nodes = robot(max_step_kpa=6.0)        # the press loop alone, not the rate limit
     z0 = ur("state")["tcp_pose"][2]
     probe.force(2.0)
     run(nodes, lambda: math_isfinite(node.measured_kpa))
@@ -237,6 +237,24 @@ def test_each_period_presses_towards_the_target_and_reports_it(robot):
     state = next(s for s in probe.states if s.period == 0)
     # the measured TCP, read a few RTDE packages (8 ms each) after the move ended
     assert state.state == "ready" and state.tcp_z_mm == pytest.approx((z0 - 0.0002) * 1000, abs=0.05)
+
+
+def test_a_forged_99_kpa_command_moves_the_target_by_the_rate_limit_only(robot):
+    """The node that moves the finger limits the force on its own: 0.5 kPa per period from the
+    measured F_N, then from its last target, never past the safety limit, whatever is asked."""
+    ur, node, probe, nodes = robot()
+    z0 = ur("state")["tcp_pose"][2]
+    probe.force(2.0)
+    run(nodes, lambda: math_isfinite(node.measured_kpa))
+    probe.grip.publish(GripCommand(normal_force_kpa=99.0, period=0))
+    run(nodes, lambda: any(s.period == 0 for s in probe.states))
+    assert node.target_kpa == pytest.approx(node.measured_kpa + 0.5) and node.clamped == 1   # P_DC: 2.0075
+    assert ur("state")["tcp_pose"][2] == pytest.approx(z0 - 0.00005, abs=1e-6)   # 0.1 mm/kPa x 0.5 kPa
+    for k in range(1, 12):
+        probe.force(2.0)
+        probe.grip.publish(GripCommand(normal_force_kpa=99.0, period=k))
+        run(nodes, lambda: any(s.period == k for s in probe.states))
+    assert node.target_kpa == 6.0 and node.clamped == 12                       # capped at the safety limit
 
 
 def test_protective_stop_holds_until_an_explicit_recovery(robot):
@@ -346,7 +364,7 @@ def press(nodes, probe, node, period, target_kpa, measured_kpa):
 
 
 def test_a_restarted_link_takes_the_depth_from_the_robot_and_keeps_the_step_limit(robot):
-    ur, node, probe, nodes = robot(max_step_mm=0.5)
+    ur, node, probe, nodes = robot(max_step_mm=0.5, max_step_kpa=6.0)    # the mm step limit alone
     z0 = ur("state")["tcp_pose"][2]
     for k in range(4):                                    # 4 clamped steps: 2 mm deep
         press(nodes, probe, node, k, 5.0, 0.0)

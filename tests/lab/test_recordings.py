@@ -223,3 +223,31 @@ def test_a_real_rigs_recording_needs_its_spring_constant_and_takes_f_n_from_p_dc
     err = np.abs(data["normal_force_kpa"] - sim["normal_force_kpa"])
     assert np.median(err) < 0.3, np.median(err)
     assert np.isnan(data["stick_area_ratio"]).all() or np.isfinite(data["stick_area_ratio"]).all()
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_ctrl_c_keeps_the_running_series_pending_and_a_rerun_collects_only_it(tmp_path):
+    import signal
+    where = tmp_path / "session"
+    graph_dir = tempfile.mkdtemp(prefix="sg", dir="/tmp")
+    env = dict(os.environ, SLIP_GRAPH_DIR=graph_dir, PYTHONUNBUFFERED="1")
+    args = [sys.executable, "-m", "incipient_slip.cli", "collect", "--out", str(where), "--materials", "pla",
+            "--series-per-material", "2", "--injection", "on", "--steps", "120", "--speed", "10"]
+    try:
+        proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        for line in proc.stdout:                       # series 0 done, series 1 (6 s at 10x) running
+            if line.startswith("[1/2]"):
+                break
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+        assert proc.returncode == 130, out + err
+        assert "series 1 stays pending" in out
+        assert [(e.index, e.status) for e in load_manifest(where).series] == [(0, "done"), (1, "pending")]
+        again = subprocess.run(args, capture_output=True, text=True, env=env, timeout=200)
+        assert again.returncode == 0, again.stdout + again.stderr
+        assert "(1 done before)" in again.stdout and "[2/2] series 1" in again.stdout and "[1/2]" not in again.stdout
+        assert [e.status for e in load_manifest(where).series] == ["done", "done"]
+        assert not list(where.rglob("*.partial.mcap"))
+    finally:
+        shutil.rmtree(graph_dir, ignore_errors=True)

@@ -6,7 +6,10 @@ on the measured F_N (P_DC of /biotac/slow) towards the target of /grip/command.
 
 One process of its own (`RobotLink`) owns ur-rtde's `RTDEControlInterface` and
 `RTDEReceiveInterface` (the optional `[robot]` extra); the node's thread only talks ZeroMQ. Safety of its own, whatever the
-controller sent: the target is clamped to `safety_limit_kpa`; a measured F_N above it
+controller sent: the target moves at most `max_step_kpa` per period (from the last target; the
+first from the measured F_N: the grip law's own rate limit, kept here too; the collection and
+identification launches, whose protocols redraw F_N, open it) and is clamped to
+`safety_limit_kpa`; a measured F_N above it
 retracts; one period's move is at most `max_step_mm`; the TCP never goes more than
 `max_press_mm` below (or `max_lift_mm` above) where it started; a command for a period older
 than or equal to the last one is refused and counted (a later period supersedes missing ones,
@@ -348,6 +351,9 @@ class UR5(Node):
         "robot_address": Param("192.168.1.5", help="the controller's IP address"),
         "rtde_hz": Param(125.0, lo=1.0, hi=500.0, help="RTDE rate (CB3 125, e-Series up to 500)"),
         "safety_limit_kpa": Param(control.SAFETY_LIMIT_KPA, lo=0.0, hi=100.0, help="never above this F_N"),
+        "max_step_kpa": Param(control.DEFAULT_MAX_STEP_KPA, lo=1e-6, hi=100.0,
+                              help="largest change of the target F_N from one period to the next, whatever a "
+                                   "command asks (the grip law's own rate limit, kept here too; kPa)"),
         "gain_mm_per_kpa": Param(0.05, lo=0.0, hi=5.0, help="press depth per kPa of F_N error per period"),
         "max_step_mm": Param(0.5, lo=0.0, hi=5.0, help="largest move in one period"),
         "max_press_mm": Param(10.0, lo=0.0, hi=100.0, help="deepest below the start pose"),
@@ -390,6 +396,7 @@ class UR5(Node):
         self.applied_period = -1    # the newest period whose move the robot made
         self.missed_periods = 0     # periods with no command (superseded by a later one)
         self.target_kpa = None      # hold=True keeps it
+        self.clamped = 0            # commands whose target was limited here (rate or safety limit)
         self.recoveries: list[bool] = []   # outcome of each explicit recovery
         self.refused = 0
         self.state_pub = self.create_publisher(RobotState)
@@ -419,7 +426,15 @@ class UR5(Node):
         if time.monotonic() - self.measured_at > self.param("force_stale_s"):
             return self.refuse(f"period {k}: no fresh F_N from {BiotacSlow.TOPIC}; holding still")
         if not msg.hold or self.target_kpa is None:
-            self.target_kpa = msg.normal_force_kpa
+            base = self.measured_kpa if self.target_kpa is None else self.target_kpa
+            self.target_kpa = control.applied_force(msg.normal_force_kpa, base, self.param("safety_limit_kpa"),
+                                                    self.param("max_step_kpa"))
+            if self.target_kpa != msg.normal_force_kpa:
+                self.clamped += 1
+                self.warn(f"GripCommand(period={k}) asked {msg.normal_force_kpa} kPa; target {self.target_kpa:.3f} "
+                          f"kPa (safety limit {self.param('safety_limit_kpa')} kPa, at most "
+                          f"{self.param('max_step_kpa')} kPa per period; {self.clamped} clamped)",
+                          throttle_s=1.0, key="clamped")
         self.jobs.put(("press", k, self.target_kpa, self.measured_kpa))
 
     def on_recover(self, msg: RobotRecover):
