@@ -51,7 +51,8 @@ test-slow: $(STAMP)
 # make reproduce: every result of the paper on the simulated rig (`slip reproduce all`: every
 # experiment in dependency order, one progress line each, a final table; docs/ and its measured
 # times rewritten; JOINT=1 adds the validation's joint uncertainty set). make reproduce-quick: the
-# quick previews (runs/all-quick; only the quick times in docs/ change).
+# quick previews (runs/all-quick; no tracked file changes: `slip reproduce all --quick --record-quick-times`
+# records their times in docs/).
 reproduce: $(STAMP)
 	$(BIN)/slip reproduce all $(if $(JOINT),--joint)
 

@@ -43,12 +43,22 @@ def test_quick_budgets_run_the_full_length_loops():
     assert all(hasattr(load(n), "QUICK") for n in EXPERIMENTS)
 
 
+def test_all_quick_changes_no_docs_file_unless_asked_to_record_its_times(tmp_path, capsys):
+    docs = tmp_path / "docs"
+    (docs / "figures").mkdir(parents=True)
+    shutil.copy(docs_dir() / "estimation.md", docs)
+    before = {p: p.read_bytes() for p in docs.rglob("*") if p.is_file()}
+    rc = main(["reproduce", "all", "--quick", "--only", "models", "--out", str(tmp_path / "all"), "--docs", str(docs)])
+    assert rc == 0 and "docs/ unchanged" in capsys.readouterr().out
+    assert {p: p.read_bytes() for p in docs.rglob("*") if p.is_file()} == before
+
+
 def test_all_quick_runs_one_experiment_logs_it_and_records_its_time(tmp_path, capsys):
     docs = tmp_path / "docs"
     (docs / "figures").mkdir(parents=True)
     shutil.copy(docs_dir() / "estimation.md", docs)
     rc = main(["reproduce", "all", "--quick", "--only", "models", "--out", str(tmp_path / "all"),
-               "--docs", str(docs)])
+               "--docs", str(docs), "--record-quick-times"])
     out = capsys.readouterr().out
     assert rc == 0, out
     assert "[1/1] models" in out and "| models | ok |" in out and "PREVIEW" in out
@@ -61,3 +71,13 @@ def test_all_quick_runs_one_experiment_logs_it_and_records_its_time(tmp_path, ca
         (docs_dir() / "estimation.md").read_text().replace(
             (docs_dir() / "estimation.md").read_text().split("<!-- BEGIN models-time -->")[1]
             .split("<!-- END models-time -->")[0], "")          # only the time block changed
+
+
+def test_an_identified_parameter_without_an_interval_adds_no_point():
+    """An overlay entry whose interval is its value (or one end of it at the value) would repeat the
+    identified rig's Table under another name: only distinct ends become points."""
+    from incipient_slip.experiments import validation
+    doc = {"provenance": {},
+           "pre_slip": {"bulk_stiffening_exponent": {"value": 1.06, "unit": "-", "source": "x", "interval": [1.06, 1.06]},
+                        "bulk_shear_n_per_mm": {"value": 0.5, "unit": "N/mm", "source": "x", "interval": [0.5, 0.6]}}}
+    assert sorted(validation.overlay_points(doc)) == ["identified", "pre_slip.bulk_shear_n_per_mm high 0.6"]

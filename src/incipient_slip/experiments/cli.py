@@ -125,9 +125,9 @@ def cmd_reproduce(args) -> int:
     module = load(args.experiment)
     settings = settings_from_args(args, module)
     t0, load0 = time.monotonic(), os.getloadavg()[0]
-    if settings.quick and not args.render_only:
-        print(f"slip reproduce {args.experiment} --quick: a PREVIEW, not the docs' result: {module.QUICK}",
-              flush=True)
+    if settings.quick and not args.render_only:     # what runs: the plan's own words where there is one
+        what = module.plan(settings).describe() if hasattr(module, "plan") else module.QUICK
+        print(f"slip reproduce {args.experiment} --quick: a PREVIEW, not the docs' result: {what}", flush=True)
     if getattr(args, "plan", False):           # an experiment that plans before it runs: print, start nothing
         print(module.plan(settings).describe())
         return 0

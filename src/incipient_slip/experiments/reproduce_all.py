@@ -53,9 +53,10 @@ def add_all_parser(sub, run_one) -> None:
     p.add_argument("--docs", type=Path, metavar="DIR", help="docs directory (default docs/)")
     p.add_argument("--render-times", action="store_true",
                    help="only rewrite every page's time block from docs/figures/reproduce_times.json; run nothing")
-    p.add_argument("--no-times", dest="times", action="store_false",
-                   help="with --quick: do not record the quick wall times in docs/figures/reproduce_times.json "
-                   "(a full run always records its own, as `slip reproduce NAME` does)")
+    p.add_argument("--record-quick-times", dest="times", action="store_true",
+                   help="with --quick: record the quick wall times in docs/figures/reproduce_times.json and the "
+                   "pages' time lines (the times `slip reproduce --list` shows); without it --quick changes no "
+                   "tracked file. A full run always records its own, as `slip reproduce NAME` does")
 
 
 def _say(text: str) -> None:
@@ -84,7 +85,8 @@ def cmd_all(args) -> int:
     out = args.out or runs_dir() / ("all-quick" if quick else "all")
     out.mkdir(parents=True, exist_ok=True)
     names = plan(args.only)
-    preview = " --quick (PREVIEWS: of docs/ only the time lines change)" if quick else ""
+    preview = ((" --quick (PREVIEWS: of docs/ only the time lines change)" if args.times else
+                " --quick (PREVIEWS into runs/; docs/ unchanged)") if quick else "")
     _say(f"slip reproduce all{preview}: {len(names)} "
         f"experiments, {args.jobs} jobs, logs in {out}/ (simulated rig)")
     rows, t_all = [], time.monotonic()

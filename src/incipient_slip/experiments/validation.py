@@ -210,13 +210,16 @@ def merge_overlays(docs: list[dict]) -> dict:
 
 def overlay_points(doc: dict) -> dict[str, dict]:
     """Return {point name: params} of an identified rig: the overlay's values, then each entry
-    with an interval at its low and high end (one at a time)."""
+    with an interval at its low and high end (one at a time). An end at the value itself (an
+    entry without an interval, or one-sided) would repeat the identified point's Table: left out."""
     from incipient_slip.sim.scene import apply_overlay, load_params, overlay_entries
 
     base, _, _ = load_params("default")
     points = {"identified": apply_overlay(base, doc)}
     for name, entry in overlay_entries(doc).items():
         for end, v in zip(("low", "high"), entry.get("interval") or ()):
+            if v == entry.get("value"):
+                continue
             points[f"{'.'.join(name[-2:])} {end} {v:.3g}"] = apply_overlay(base, doc, values={name: v})
     return points
 
