@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-load test-slow reproduce reproduce-quick bench bench-graph bench-cli bench-curve bench-bag bench-sim bench-grid bench-estimation bench-estimator bench-loop bench-loop-viewer bench-bridge bench-emulated-load clean
+.PHONY: demo test test-load test-slow reproduce reproduce-quick bench bench-graph bench-cli bench-curve bench-bag bench-sim bench-import bench-grid bench-estimation bench-estimator bench-loop bench-loop-viewer bench-bridge bench-emulated-load clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -82,6 +82,11 @@ bench-bag: $(STAMP)
 
 bench-sim: $(STAMP)
 	$(BIN)/python bench/bench_sim.py
+
+# slip dataset --from-recordings: one 450-period recording read in log vs file order, converted,
+# and imported on one process vs all cores
+bench-import: $(STAMP)
+	$(BIN)/python bench/bench_import.py
 
 # SVR grid search in process vs a forked pool of 2 (`slip reproduce --jobs`), interleaved
 bench-grid: $(STAMP)
