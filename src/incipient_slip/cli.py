@@ -29,6 +29,7 @@ COMMANDS = {
     "incipient_slip.experiments.cli": ("reproduce",),
     "incipient_slip.experiments.run_plot": ("run",),
     "incipient_slip.nodes.device_tools": ("robot", "rig"),
+    "incipient_slip.nodes.calibrate": ("calibrate",),
     "incipient_slip.nodes.foxglove_bridge": ("view",),
 }
 COMMAND_MODULES = tuple(COMMANDS)

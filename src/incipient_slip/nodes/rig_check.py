@@ -25,7 +25,7 @@ import socket
 import time
 from concurrent.futures import ThreadPoolExecutor
 
-from incipient_slip.devices import biotac, natnet, pzt, rig_config, zaber
+from incipient_slip.devices import biotac, calibration, natnet, pzt, rig_config, zaber
 from incipient_slip.errors import UsageError
 from incipient_slip.graph.params import Param, ParamError, merge_params
 from incipient_slip.graph.runtime import Node, run_node
@@ -34,13 +34,15 @@ EXIT_MISSING = 2
 
 
 def apply_rig_config(node, section: str, explicit: dict | None) -> None:
-    """Fills `node.params` from `section` of the file in its `rig_config` parameter, keeping
-    every parameter given explicitly (`explicit`); ParamError names the file and the key."""
+    """Fills `node.params` from `section` of the file in its `rig_config` parameter and from the
+    calibration file it names (`devices.calibration`), keeping every parameter given explicitly
+    (`explicit`); ParamError names the file and the key."""
     path = node.param("rig_config")
     if not path:
         return
     try:
         values = rig_config.load_section(path, section)
+        values = {**values, **calibration.node_values(path, section, values)}
     except UsageError as exc:
         raise ParamError(str(exc)) from None
     explicit = dict(explicit or {})
