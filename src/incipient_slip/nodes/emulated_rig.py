@@ -23,11 +23,16 @@ import os
 import tempfile
 
 from incipient_slip import control
-from incipient_slip.devices.emulated_rig import EmulatedRig
 from incipient_slip.errors import EXIT_FAULT
+from incipient_slip.extras import needed
 from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
-from incipient_slip.sim.scene import SceneError
+
+try:
+    from incipient_slip.devices.emulated_rig import EmulatedRig
+    from incipient_slip.sim.scene import SceneError
+except ModuleNotFoundError as exc:      # a lab PC's lean install: name the [sim] extra
+    raise needed(exc) from None
 
 
 class EmulatedRigNode(Node):

@@ -1,6 +1,8 @@
 """rig_check: are the real rig's devices there? One line per missing device, exit 2.
 
-    python -m incipient_slip.nodes.rig_check rig_config:=config/rig.yaml
+    slip rig check --config FILE [--biotac-port PORT] [--pzt-device [CARD]]
+
+(the operator's spelling; `launch ... rig:=hardware` runs this node as its gate).
 
 Checks every device section of the rig configuration at once, each within `timeout_s`:
 the NatNet server answers a connect with its server info, the Zaber stage answers a status
