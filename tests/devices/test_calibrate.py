@@ -182,3 +182,16 @@ def test_bad_inputs_are_one_line_each(tmp_path):
     code, text = run_calibrate(["pdc", "--config", str(tmp_path / "none.yaml"), "--biotac-port", "/dev/x"],
                                lambda: 0.0)
     assert code == 2 and "cannot read it" in text
+
+
+def test_a_reading_takes_its_unit_and_a_bad_one_is_asked_again(monkeypatch, capsys):
+    import io
+
+    from incipient_slip.nodes import calibrate
+    grams = {"": 1.0, "N": 1.0, "g": calibrate.GRAVITY / 1000.0, "kg": calibrate.GRAVITY}
+    monkeypatch.setattr("sys.stdin", io.StringIO("twelve\n-\n153 g\n"))
+    assert calibrate.ask("load?", grams) == pytest.approx(0.153 * 9.80665)
+    assert capsys.readouterr().out.count("not a reading") == 2
+    monkeypatch.setattr("sys.stdin", io.StringIO("0.5 lb\n"))
+    with pytest.raises(UsageError, match="input ended"):
+        calibrate.ask("load?", grams)
