@@ -12,7 +12,7 @@ COPY tests/data ./tests/data
 # the run directory are created here, owned by the user the nodes run as, mode 0700: a named
 # volume mounted on /graph starts as a copy of this directory (owner and mode included), so the
 # nodes do not meet a root-owned graph directory (which they would refuse, docs/graph.md).
-RUN pip install --no-cache-dir -c constraints.txt -e . && useradd -m slip \
+RUN pip install --no-cache-dir -c constraints.txt -e '.[sim]' && useradd -m slip \
     && mkdir -m 0700 /graph && mkdir -m 0755 /runs && chown slip:slip /graph /runs
 USER slip
 ENV SLIP_GRAPH_DIR=/graph

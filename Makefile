@@ -1,5 +1,5 @@
 # Two commands: `make demo` and `make test`. Each creates .venv and installs the project if needed
-# (with the test tools and the [view] extra, whose bridge the tests drive).
+# (with the simulator's [sim] extra, the test tools and the [view] extra, whose bridge the tests drive).
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -10,7 +10,7 @@ STAMP := $(VENV)/.installed
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test,view]'
+	$(BIN)/pip install --quiet -e '.[sim,test,view]'
 	touch $(STAMP)
 
 # One closed-loop run on the simulated rig (rig_sim, estimator, grip_controller, supervisor as

@@ -15,6 +15,7 @@ import os
 import stat
 import sys
 
+from incipient_slip import extras
 from incipient_slip.errors import EXIT_INTERRUPTED, EXIT_USAGE, UsageError
 
 EXIT_BROKEN_PIPE = 128 + 13    # what a shell reports for a tool ended by SIGPIPE
@@ -29,6 +30,7 @@ COMMANDS = {
     "incipient_slip.experiments.cli": ("reproduce",),
     "incipient_slip.experiments.run_plot": ("run",),
     "incipient_slip.nodes.device_tools": ("robot", "rig"),
+    "incipient_slip.nodes.calibrate": ("calibrate",),
     "incipient_slip.nodes.foxglove_bridge": ("view",),
 }
 COMMAND_MODULES = tuple(COMMANDS)
@@ -72,6 +74,12 @@ def main(argv: list[str] | None = None, modules: tuple[str, ...] = COMMAND_MODUL
         return code
     except UsageError as exc:
         print(f"{_where(args)}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except ModuleNotFoundError as exc:      # an optional extra not installed: say which
+        line = extras.hint(exc)
+        if line is None:
+            raise
+        print(f"{_where(args)}: error: {line}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED

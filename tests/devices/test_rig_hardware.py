@@ -114,6 +114,24 @@ def test_rig_check_passes_when_the_emulated_devices_answer(tmp_path, graph):
     assert proc.returncode == 0 and "all 3 devices answer: natnet, zaber, ur5" in err.decode()
 
 
+def test_slip_rig_check_needs_the_lab_s_own_config(graph):
+    """No default: copied from the README it must not probe the shipped example addresses."""
+    proc = graph.spawn([str(Path(sys.executable).parent / "slip"), "rig", "check"])
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 2 and "the following arguments are required: --config" in err.decode()
+
+
+def test_rig_check_names_a_stage_that_does_not_fit_its_section(tmp_path, graph):
+    with ZaberEmulator(limit_max_mm=25.0) as stage:
+        path = tmp_path / "rig.yaml"
+        path.write_text(yaml.safe_dump({"zaber": {"port": stage.port, "limit_max_mm": 50.0}}))
+        proc = graph.spawn([str(Path(sys.executable).parent / "slip"), "rig", "check", "--config", str(path)])
+        _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 2
+    assert f"[rig_check] zaber: {stage.port}: the configured travel [0, 50] mm is outside the device's " \
+           f"limit.min..limit.max = [0.000, 25.000] mm" in err.decode()
+
+
 def test_robot_recover_without_a_robot_node_is_exit_2(graph):
     proc = graph.spawn([str(Path(sys.executable).parent / "slip"), "robot", "recover", "--timeout", "0.5"])
     _, err = proc.communicate(timeout=30)

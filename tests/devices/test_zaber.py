@@ -116,6 +116,30 @@ def test_move_beyond_the_limit_is_rejected_with_baddata_explained(stage):
     assert client.position_mm() == 0.0
 
 
+def test_the_stage_says_what_it_is_device_scope_on_axis_0(stage):
+    emulator, client = stage(limit_min_mm=1.0, limit_max_mm=30.0, device_id=50123, resolution=128)
+    info = client.read_stage()
+    assert info == z.StageInfo(device_id=50123, axis_count=1, peripheral_id=0, resolution=128,
+                               limit_min=emulator.limit_min, limit_max=emulator.limit_max)
+    with pytest.raises(z.ZaberRejected) as err:           # device scope sent to an axis
+        client.command("get deviceid")
+    assert err.value.reason == "DEVICEONLY" and "axis 0" in str(err.value)
+
+
+def test_check_stage_names_each_mismatch_and_what_to_change():
+    info = z.StageInfo(device_id=50123, axis_count=1, peripheral_id=0, resolution=64,
+                       limit_min=0, limit_max=round(25.4 * 20997.375))
+    ok = dict(axis=1, microsteps_per_mm=20997.375, resolution=64, limit_min_mm=0.0, limit_max_mm=25.0)
+    assert z.check_stage(info, **ok) == ""
+    assert "has 1 axis" in z.check_stage(info, **{**ok, "axis": 2})
+    line = z.check_stage(info, **{**ok, "resolution": 32})
+    assert "resolution is 64" in line and "set microsteps_per_mm to 41994.8" in line
+    line = z.check_stage(info, **{**ok, "limit_max_mm": 50.0})
+    assert "outside the device's limit.min..limit.max = [0.000, 25.400] mm" in line
+    # a wrong microstep size shows as a travel the device does not have
+    assert "limit.max" in z.check_stage(info, **{**ok, "microsteps_per_mm": 2 * 20997.375})
+
+
 def test_unknown_command_is_badcommand(stage):
     emulator, client = stage(homed=True)
     with pytest.raises(z.ZaberRejected) as err:

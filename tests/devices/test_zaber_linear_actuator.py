@@ -106,6 +106,19 @@ def test_target_outside_the_configured_travel_is_refused(rig):
     assert node.exit_code == 3 and emulator.position_mm <= 2.5 + 1e-6
 
 
+def test_a_configured_travel_beyond_the_device_s_limits_is_exit_2_before_any_move(rig):
+    emulator, node, probe = rig(emulator_kw={"limit_max_mm": 2.5})      # node: limit_max_mm 50
+    run((node, probe), lambda: node.stopping)
+    assert node.exit_code == 2 and emulator.commands.count("home") == 0
+    assert not any(c.startswith("move") for c in emulator.commands)
+
+
+def test_a_resolution_other_than_the_configured_one_is_exit_2(rig):
+    emulator, node, probe = rig(emulator_kw={"resolution": 128})
+    run((node, probe), lambda: node.stopping)
+    assert node.exit_code == 2 and not any(c.startswith("move") for c in emulator.commands)
+
+
 def test_missing_port_is_exit_2_with_one_line(graph):
     proc = graph.spawn(["python", "-m", "incipient_slip.nodes.linear_actuator", "port:=/dev/ttyNOPE9"])
     _, err = proc.communicate(timeout=30)

@@ -363,6 +363,7 @@ class PtyBridgeServer:
         self._master = self._slave = -1
         self._out = bytearray()
         self._catching_up = False
+        self._idle_since: float | None = None     # when the last stream stopped (real time)
         self._thread: threading.Thread | None = None
         self.ready = threading.Event()
 
@@ -416,11 +417,18 @@ class PtyBridgeServer:
                 self.streaming = True
                 self.bridge.start()
                 self._next_due = time.monotonic()
-            elif c == ord("X"):
+                if not self.lockstep and self._idle_since is not None:
+                    # the sensor's world and the bridge's clock went on while nothing streamed:
+                    # the first frame is sampled now, not where the last stream stopped (a host
+                    # that reconnected saw the contact as it was when it left, seconds late)
+                    idle = int((self._next_due - self._idle_since) / self.frame_period_s)
+                    self.bridge.t_ns += idle * bt.FRAME_US * 1000
+            elif c in (ord("X"), ord("?")):
+                if self.streaming:
+                    self._idle_since = time.monotonic()
                 self.streaming = False
-            elif c == ord("?"):
-                self.streaming = False
-                self._out += self.bridge.property_frames()
+                if c == ord("?"):
+                    self._out += self.bridge.property_frames()
 
     def _flush(self) -> None:
         while self._out:

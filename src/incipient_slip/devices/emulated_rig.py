@@ -31,6 +31,9 @@ Its outputs feed the emulators: the BioTac serves the period's P_AC, electrodes,
 temperatures (`ContactSignals`, the sensor's clock mapped onto the contact's), the NatNet
 server streams the object's pose at the mocap sample of the current time. `truth` keeps each
 period's inputs and state (F_N applied, actuator, travel, stick ratio) for tests and logs.
+The rig's calibration can be hidden in it (`newton_per_kpa`, `spring_n_per_mm`: the scene's
+values replaced) and `instruments()` reads the reference instruments `slip calibrate` asks the
+operator for, so that a test can check that the calibration recovers the hidden values.
 Not emulated: lock-step (the devices run in real time only) and the P_AC path from the PZT's
 waveform itself (the simulator's own noise source is scaled to the measured intensity).
 """
@@ -119,13 +122,30 @@ def wav_rms(path: str | Path, window_s: float) -> float | None:
     return float(np.sqrt(np.mean((pcm / 32767.0) ** 2)))
 
 
+def with_overrides(scene, overrides: dict):
+    """The scene with {"section.key": value} of its params replaced (the emulated rig's hidden
+    calibration: the finger's newton_per_kpa, the rail's spring); ValueError for an unknown key."""
+    if not overrides:
+        return scene
+    import copy
+    import dataclasses
+    params = copy.deepcopy(scene.params)
+    for name, value in overrides.items():
+        section, _, key = name.partition(".")
+        if key not in params.get(section, {}):
+            raise ValueError(f"no scene parameter {name!r} to override")
+        params[section][key] = float(value)
+    return dataclasses.replace(scene, params=params)
+
+
 class SharedContact:
     """The one simulated contact every emulator reads and writes; steps in real time."""
 
     def __init__(self, scene: str = "paper", material: str = "", seed: int = 0, *,
                  actuator_mm=lambda: 0.0, depth_mm=lambda: 0.0, pzt_rms=lambda: None,
-                 rated_rms: float = 0.25, pzt_on_rms: float = 1e-4, clock=time.monotonic):
-        loaded = load_scene(scene)
+                 rated_rms: float = 0.25, pzt_on_rms: float = 1e-4, clock=time.monotonic,
+                 overrides: dict | None = None):
+        loaded = with_overrides(load_scene(scene), overrides or {})
         self.rig = Rig(loaded, material or loaded.materials[0], seed)
         self.press = HertzPress.of(self.rig)
         self.period_s = self.rig.period_s
@@ -214,7 +234,8 @@ class EmulatedRig:
                  robot_address: str = "127.0.0.3", natnet_command_port: int = 41510,
                  natnet_data_port: int = 41511, natnet_version=(4, 1),
                  start_mm: float = 0.0, speed_mm_s: float = 5.0, press_axis: int = 2,
-                 press_sign: float = 1.0, rated_rms: float = 0.25, pzt_window_s: float = 0.1):
+                 press_sign: float = 1.0, rated_rms: float = 0.25, pzt_window_s: float = 0.1,
+                 newton_per_kpa: float | None = None, spring_n_per_mm: float | None = None):
         from incipient_slip.devices.biotac_emulator import BiotacSpiSlave, EmulatedBridge, PtyBridgeServer
         from incipient_slip.devices.fake_ur import FakeURController
         from incipient_slip.devices.natnet_emulator import NatNetEmulator
@@ -235,7 +256,9 @@ class EmulatedRig:
         self.shared = SharedContact(
             scene, material, seed, actuator_mm=lambda: self.zaber.position_mm - self.start_mm,
             depth_mm=self.depth_mm, pzt_rms=lambda: wav_rms(self.pzt_path, pzt_window_s),
-            rated_rms=rated_rms)
+            rated_rms=rated_rms, overrides={k: v for k, v in (("contact.newton_per_kpa", newton_per_kpa),
+                                                              ("stick_slip.spring_n_per_mm", spring_n_per_mm))
+                                            if v is not None})
         slave = BiotacSpiSlave(ContactSignals(self.shared), serial="BT-EMU-0001")
         self.biotac = PtyBridgeServer(EmulatedBridge([slave]), self.biotac_link)
 
@@ -243,6 +266,17 @@ class EmulatedRig:
         """The TCP's press depth since its start pose, mm (positive: pressing)."""
         a = self.press_axis
         return self.press_sign * (self.tcp_start[a] - self.ur.tcp_pose[a]) * 1000.0
+
+    def instruments(self) -> dict:
+        """What the lab's reference instruments of `slip calibrate` would read now, N: a scale
+        under the finger (the normal force of the present press depth: the object stands in for
+        the scale) and a force gauge holding the object's end of the spring at the rail's zero
+        (the spring's force at the stage's pull from start_mm)."""
+        p = self.shared.rig.p
+        depth = self.depth_mm()
+        return {"scale_n": self.shared.press.normal_force_kpa(depth) * self.shared.press.newton_per_kpa,
+                "spring_gauge_n": max(self.zaber.position_mm - self.start_mm, 0.0)
+                * float(p["stick_slip"]["spring_n_per_mm"])}
 
     def start(self) -> "EmulatedRig":
         """Starts every emulator (OSError when an address or port is taken) and the contact's clock."""

@@ -14,6 +14,12 @@ a garbled line, a wrong checksum, a reply to an earlier command that timed out. 
 command raises `ZaberRejected` with the reason spelled out; a fault flag (F...) raises
 `ZaberFault`; no reply raises `ZaberTimeout`. Relative moves are never retried: only the
 idempotent status poll, reads, stop and absolute moves are.
+
+What the stage is comes from the device itself (`read_stage`: device id, peripheral id, axis
+count, microstep resolution, travel limits), checked against the rig configuration by
+`check_stage` (docs/hardware-motion.md, "Zaber: our driver, not zaber-motion"). The one thing a
+device does not report is the length of its microstep: that is the configuration's
+`microsteps_per_mm`, from the stage's datasheet at the `resolution` it is given for.
 """
 from __future__ import annotations
 
@@ -23,9 +29,11 @@ from dataclasses import dataclass
 
 __all__ = ["ZaberError", "ZaberTimeout", "ZaberRejected", "ZaberFault", "ZaberLineError",
            "Reply", "checksum", "format_command", "parse_line", "ZaberClient",
-           "REJECTION_REASONS", "WARNING_FLAGS", "DEFAULT_BAUD"]
+           "REJECTION_REASONS", "WARNING_FLAGS", "DEFAULT_BAUD", "DEFAULT_RESOLUTION", "StageInfo",
+           "check_stage"]
 
 DEFAULT_BAUD = 115200
+DEFAULT_RESOLUTION = 64  # microsteps per full step at which Zaber's datasheets give the microstep size
 MAX_LATE_LINES = 64      # lines read after a reply's deadline (what came while this process waited)
 
 # Why a device rejects a command (the data of an RJ reply), in words a user can act on.
@@ -162,6 +170,47 @@ def parse_line(line: str) -> Reply:
     return Reply(kind, device, axis, message_id, rest[0], rest[1], rest[2], " ".join(rest[3:]))
 
 
+@dataclass(frozen=True)
+class StageInfo:
+    """What a Zaber device reports about itself and one axis (`ZaberClient.read_stage`)."""
+
+    device_id: int
+    axis_count: int
+    peripheral_id: int      # 0: an integrated device (no separate peripheral)
+    resolution: int         # microsteps per full step
+    limit_min: int          # travel limits, microsteps
+    limit_max: int
+
+    def describe(self, microsteps_per_mm: float) -> str:
+        return (f"device id {self.device_id}, peripheral id {self.peripheral_id}, "
+                f"{self.axis_count} axis(es), resolution {self.resolution}, travel "
+                f"{self.limit_min / microsteps_per_mm:.3f}..{self.limit_max / microsteps_per_mm:.3f} mm")
+
+
+def check_stage(info: StageInfo, *, axis: int, microsteps_per_mm: float, resolution: int,
+                limit_min_mm: float, limit_max_mm: float) -> str:
+    """"" when the configuration fits the stage the device reports, else the line saying what
+    does not and what to change: the axis exists, the device's microstep resolution is the one
+    `microsteps_per_mm` is given for, and [limit_min_mm, limit_max_mm] lies within the device's
+    own limit.min..limit.max (a configured travel beyond them is a wrong stage or a wrong
+    microstep size; the device would refuse those moves with BADDATA mid-run)."""
+    if axis > info.axis_count:
+        return (f"axis {axis} is configured but the device (id {info.device_id}) has "
+                f"{info.axis_count} axis(es): set axis to 1..{info.axis_count}")
+    if info.resolution != resolution:
+        return (f"the axis's microstep resolution is {info.resolution} microsteps per step but "
+                f"microsteps_per_mm {microsteps_per_mm:g} is configured for resolution {resolution}: "
+                f"set microsteps_per_mm to {microsteps_per_mm * info.resolution / resolution:g} and "
+                f"resolution to {info.resolution}, or set the device back ('set resolution {resolution}')")
+    lo, hi = info.limit_min / microsteps_per_mm, info.limit_max / microsteps_per_mm
+    if not (lo - 1e-9 <= limit_min_mm and limit_max_mm <= hi + 1e-9):
+        return (f"the configured travel [{limit_min_mm:g}, {limit_max_mm:g}] mm is outside the "
+                f"device's limit.min..limit.max = [{lo:.3f}, {hi:.3f}] mm at microsteps_per_mm "
+                f"{microsteps_per_mm:g} (device id {info.device_id}): a shorter stage than "
+                f"configured, or a wrong microsteps_per_mm; set limit_min_mm/limit_max_mm within it")
+    return ""
+
+
 class ZaberClient:
     """Talks to one axis of one Zaber device on a serial port (pyserial or any object with
     write(), readline() honouring a timeout, and reset_input_buffer()).
@@ -185,31 +234,50 @@ class ZaberClient:
 
     # --- one exchange ---
 
-    def command(self, command: str, *, retries: int = 0) -> Reply:
+    def command(self, command: str, *, retries: int = 0, axis: int | None = None) -> Reply:
         """The device's OK reply to `command` ("" polls status); raises ZaberRejected on RJ,
-        ZaberTimeout without a reply (after `retries` more tries: only for idempotent ones)."""
+        ZaberTimeout without a reply (after `retries` more tries: only for idempotent ones).
+        `axis=0` sends it to the device as a whole (device-scope settings)."""
+        axis = self.axis if axis is None else axis
         for attempt in range(retries + 1):
             message_id = self._next_id
             self._next_id = (self._next_id + 1) % 100
-            self.port.write(format_command(self.device, self.axis, message_id, command))
+            self.port.write(format_command(self.device, axis, message_id, command))
             self.stats["commands"] += 1
-            reply = self._await(message_id)
+            reply = self._await(message_id, axis)
             if reply is not None:
                 break
             self.stats["timeouts"] += 1
         else:
-            raise ZaberTimeout(f"no reply from {self.name} device {self.device} axis {self.axis} "
+            raise ZaberTimeout(f"no reply from {self.name} device {self.device} axis {axis} "
                                f"to {command or '(status poll)'!r} within {self.timeout_s:g} s "
                                f"(powered, cabled, at the configured baud rate, ASCII protocol?)")
         self.last_reply = reply
         if reply.flag == "RJ":
             self.stats["rejected"] += 1
             why = REJECTION_REASONS.get(reply.data, "unknown reason")
-            raise ZaberRejected(f"{self.name} device {self.device} axis {self.axis} rejected "
+            raise ZaberRejected(f"{self.name} device {self.device} axis {axis} rejected "
                                 f"{command!r}: {reply.data} ({why})", reply.data)
         return reply
 
-    def _await(self, message_id: int) -> Reply | None:
+    def get_int(self, setting: str, *, axis: int | None = None) -> int:
+        """The integer value of `setting` (`get SETTING`); ZaberError when it is not one."""
+        reply = self.command(f"get {setting}", retries=2, axis=axis)
+        try:
+            return int(reply.data.split()[0])
+        except (IndexError, ValueError):
+            raise ZaberError(f"{self.name}: 'get {setting}' answered {reply.data!r}, not an integer") from None
+
+    def read_stage(self) -> "StageInfo":
+        """What the device says it is: device id and axis count (device scope, axis 0), and the
+        axis's peripheral id, microstep resolution and travel limits (microsteps)."""
+        return StageInfo(device_id=self.get_int("deviceid", axis=0),
+                         axis_count=self.get_int("system.axiscount", axis=0),
+                         peripheral_id=self.get_int("peripheralid"),
+                         resolution=self.get_int("resolution"),
+                         limit_min=self.get_int("limit.min"), limit_max=self.get_int("limit.max"))
+
+    def _await(self, message_id: int, axis: int) -> Reply | None:
         """The reply with `message_id`, or None when none came within `timeout_s`. The deadline
         is checked before each read, so what arrived while this process was not run (a loaded
         host) is still read once the deadline has passed: the timeout is the device's silence,
@@ -237,7 +305,7 @@ class ZaberClient:
                 self.stats["alerts"] += 1
             elif reply.kind == "#":
                 self.stats["info"] += 1
-            elif (reply.device, reply.axis, reply.message_id) != (self.device, self.axis, message_id):
+            elif (reply.device, reply.axis, reply.message_id) != (self.device, axis, message_id):
                 self._drop("foreign_reply", raw)   # another axis, or a late reply to a timed-out command
             else:
                 return reply

@@ -7,7 +7,12 @@ It reads command lines on the pty and answers as a Zaber device does: the messag
 the command's checksum verified, replies with a checksum when `comm.checksum` is 1, BUSY for a
 move's duration (first-order: constant speed `maxspeed`) then IDLE, moves beyond limit.min /
 limit.max rejected with BADDATA, unknown commands with BADCOMMAND, the WR flag until the axis
-is homed, alerts (`!01 1 IDLE --`) after a move when `comm.alert` is 1.
+is homed, alerts (`!01 1 IDLE --`) after a move when `comm.alert` is 1. It reports what it is
+as a device does: `get deviceid` and `get system.axiscount` on axis 0 (device scope; on axis 1
+RJ DEVICEONLY), `get peripheralid` (0: an integrated stage), `get resolution` (microsteps per
+full step, 64 unless given) and `get limit.min` / `get limit.max` on the axis. The device id is
+a parameter (default 50000, no particular product): real ids name products in Zaber's device
+database.
 
 Faults, for the next n lines it would send (`inject(fault, n)`): `no_reply`, `garble` (noise
 in place of the reply), `bad_checksum`; and events: `reset()` (as a power cycle: the move
@@ -40,8 +45,10 @@ class ZaberEmulator:
     def __init__(self, *, device: int = 1, microsteps_per_mm: float = DEFAULT_MICROSTEPS_PER_MM,
                  limit_min_mm: float = 0.0, limit_max_mm: float = 50.0, speed_mm_s: float = 5.0,
                  homed: bool = False, reply_checksums: bool = False, alerts: bool = False,
-                 pad_ids: bool = True, clock=time.monotonic):
+                 pad_ids: bool = True, device_id: int = 50000, resolution: int = 64,
+                 clock=time.monotonic):
         self.device = device
+        self.device_id, self.resolution = device_id, resolution
         self.microsteps_per_mm = microsteps_per_mm
         self.limit_min = round(limit_min_mm * microsteps_per_mm)
         self.limit_max = round(limit_max_mm * microsteps_per_mm)
@@ -218,9 +225,15 @@ class ZaberEmulator:
                 return "OK", "0"
             if cmd == "get pos" and len(words) == 2:
                 return "OK", str(round(self._pos))
-            if cmd in ("get limit.max", "get limit.min", "get maxspeed") and len(words) == 2:
+            if cmd in ("get deviceid", "get system.axiscount") and len(words) == 2:
+                if axis != 0:
+                    return "RJ", "DEVICEONLY"
+                return "OK", str(self.device_id if cmd == "get deviceid" else 1)
+            if cmd in ("get limit.max", "get limit.min", "get maxspeed", "get resolution",
+                       "get peripheralid") and len(words) == 2:
                 return "OK", str({"get limit.max": self.limit_max, "get limit.min": self.limit_min,
-                                  "get maxspeed": self.maxspeed}[cmd])
+                                  "get maxspeed": self.maxspeed, "get resolution": self.resolution,
+                                  "get peripheralid": 0}[cmd])
             if cmd == "set maxspeed" and len(words) == 3:
                 value = int(words[2])
                 if value <= 0:

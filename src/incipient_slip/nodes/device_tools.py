@@ -74,8 +74,15 @@ def register(subparsers) -> None:
     rig = subparsers.add_parser("rig", help="the real rig's devices")
     gsub = rig.add_subparsers(dest="tool", metavar="TOOL", required=True)
     p = gsub.add_parser("check", help="which devices of the rig configuration answer "
-                        "(one line per missing device, exit 2)")
-    p.add_argument("--config", default="config/rig.yaml", help="rig configuration (default config/rig.yaml)")
+                        "(one line per missing device, exit 2)",
+                        description="Probes every device section of --config at once (NatNet, Zaber, "
+                        "UR5), and the BioTac bridge and the PZT's sound card when asked, as the gate of "
+                        "`launch ... rig:=hardware` does: one line per missing device (what to check), "
+                        "exit 2; exit 0 when all answer. What each line means: docs/hardware/setup.md "
+                        "(section 'What rig check's lines mean').")
+    p.add_argument("--config", required=True, metavar="FILE",
+                   help="your rig configuration: a copy of config/rig.yaml with your lab's addresses "
+                   "(the shipped file's addresses are examples, so there is no default)")
     p.add_argument("--timeout", type=float, default=3.0, metavar="S",
                    help="each device must answer within this (default 3 s)")
     p.add_argument("--biotac-port", default="", metavar="PORT",

@@ -23,11 +23,16 @@ import os
 import tempfile
 
 from incipient_slip import control
-from incipient_slip.devices.emulated_rig import EmulatedRig
 from incipient_slip.errors import EXIT_FAULT
+from incipient_slip.extras import needed
 from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
-from incipient_slip.sim.scene import SceneError
+
+try:
+    from incipient_slip.devices.emulated_rig import EmulatedRig
+    from incipient_slip.sim.scene import SceneError
+except ModuleNotFoundError as exc:      # a lab PC's lean install: name the [sim] extra
+    raise needed(exc) from None
 
 
 class EmulatedRigNode(Node):
@@ -45,6 +50,8 @@ class EmulatedRigNode(Node):
         "natnet_data_port": Param(41511, lo=1, hi=65535, help="NatNet data port on 127.0.0.1"),
         "start_mm": Param(0.0, lo=-1000.0, hi=1000.0, help="stage position at zero pull (linear_actuator start_mm)"),
         "rated_rms": Param(0.25, lo=1e-6, hi=1.0, help="the PZT's 0 dB RMS (pzt_injector rated_rms)"),
+        "newton_per_kpa": Param(0.0, lo=0.0, hi=10.0, help="hidden calibration: the finger's N per kPa of P_DC (0: the scene's)"),
+        "spring_n_per_mm": Param(0.0, lo=0.0, hi=10.0, help="hidden calibration: the rail spring's N/mm (0: the scene's)"),
         "tick_s": Param(0.004, lo=0.001, hi=0.05, help="how often the contact and the NatNet pose advance, s"),
         "log_every": Param(10, lo=0, help="log the contact's truth every this many periods (0: never)"),
         "nice": Param(-10, lo=-20, hi=19, help="scheduling priority of the emulators (hardware is never starved)"),
@@ -66,7 +73,8 @@ class EmulatedRigNode(Node):
                                    robot_address=p("robot_address"),
                                    natnet_command_port=p("natnet_command_port"),
                                    natnet_data_port=p("natnet_data_port"), start_mm=p("start_mm"),
-                                   rated_rms=p("rated_rms"))
+                                   rated_rms=p("rated_rms"), newton_per_kpa=p("newton_per_kpa") or None,
+                                   spring_n_per_mm=p("spring_n_per_mm") or None)
             self.rig.start()
         except (SceneError, ValueError, OSError) as exc:
             raise ParamError(f"node {self.name!r}: cannot start the emulated rig: {exc}") from None
@@ -95,7 +103,9 @@ class EmulatedRigNode(Node):
             if t.period % every == 0:
                 self.log(f"period {t.period}: F_N {t.normal_force_kpa:.2f} kPa (press {t.depth_mm:.2f} mm), "
                          f"actuator {t.actuator_mm:.3f} mm, y {t.object_y_mm:.3f} mm, "
-                         f"stick ratio {t.stick_area_ratio:.2f}, PZT {'on' if t.pzt_on else 'off'}")
+                         f"stick ratio {t.stick_area_ratio:.2f}, PZT {'on' if t.pzt_on else 'off'}; "
+                         f"reference instruments: scale {self.rig.instruments()['scale_n']:.3f} N, spring "
+                         f"gauge {self.rig.instruments()['spring_gauge_n']:.4f} N")
 
 
 def set_priority(nice: int) -> str:

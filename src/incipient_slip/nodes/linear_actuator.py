@@ -3,8 +3,11 @@ protocol: 23 mm in 450 steps, one step each 500 ms), publishing /actuator/state.
 
     python -m incipient_slip.nodes.linear_actuator port:=/dev/ttyUSB0 microsteps_per_mm:=20997.375
 
-At start it opens the port, checks that the device answers, homes the axis if it has no
-reference position (WR) and moves to `start_mm`. Then every `period_s` it moves to the next
+At start it opens the port, checks that the device answers, reads what the stage is (device
+id, axis count, microstep resolution, travel limits: `zaber.ZaberClient.read_stage`) and checks
+the configuration against it (`zaber.check_stage`: the axis exists, `resolution` is the device's,
+[limit_min_mm, limit_max_mm] lies within the device's limits; exit 2 with the line saying what to
+change), homes the axis if it has no reference position (WR) and moves to `start_mm`. Then every `period_s` it moves to the next
 absolute target `start_mm + (k + 1) * travel_mm / steps` (absolute targets: no rounding drift,
 and a lost reply can be resent safely), waits until IDLE, reads the position back and
 publishes `ActuatorState(step_index=k)`: the period tick the grip controller answers. With
@@ -61,13 +64,17 @@ class LinearActuator(Node):
         "baud": Param(zaber.DEFAULT_BAUD, choices=(9600, 19200, 38400, 57600, 115200), help="baud rate"),
         "device": Param(1, lo=1, hi=99, help="device address"),
         "axis": Param(1, lo=1, hi=9, help="axis number"),
-        "microsteps_per_mm": Param(20997.375, lo=1.0, hi=1e7, help="stage resolution (config/rig.yaml)"),
+        "microsteps_per_mm": Param(20997.375, lo=1.0, hi=1e7, help="microsteps per mm at `resolution` "
+                                   "(the stage's datasheet: 1 / microstep size; config/rig.yaml)"),
+        "resolution": Param(zaber.DEFAULT_RESOLUTION, lo=1, hi=4096,
+                            help="microsteps per full step that microsteps_per_mm is for; the device's "
+                                 "own (get resolution) must match"),
         "travel_mm": Param(PAPER_TRAVEL_MM, lo=0.0, hi=500.0, help="total pull (paper: 23 mm)"),
         "steps": Param(PAPER_STEPS, lo=1, hi=100000, help="number of steps (paper: 450)"),
         "period_s": Param(0.5, lo=0.01, hi=60.0, help="one step per period (paper: 500 ms)"),
         "start_mm": Param(0.0, lo=-1000.0, hi=1000.0, help="absolute position of step 0's start"),
-        "limit_min_mm": Param(0.0, lo=-1000.0, hi=1000.0, help="never command below this"),
-        "limit_max_mm": Param(50.0, lo=-1000.0, hi=1000.0, help="never command above this"),
+        "limit_min_mm": Param(0.0, lo=-1000.0, hi=1000.0, help="never command below this (within the device's limit.min)"),
+        "limit_max_mm": Param(50.0, lo=-1000.0, hi=1000.0, help="never command above this (within the device's limit.max)"),
         "tolerance_mm": Param(0.005, lo=0.0, hi=1.0, help="read-back position must be this close"),
         "open_timeout_s": Param(0.0, lo=0.0, hi=600.0, help="keep trying the port and device this long at start"),
         "reply_timeout_s": Param(0.5, lo=0.01, hi=10.0, help="wait this long for a reply"),
@@ -137,6 +144,21 @@ class LinearActuator(Node):
                     self.log(f"linear_actuator: {exc}")
                     self.shutdown("no Zaber device", EXIT_NO_DEVICE)
                     return False
+        p = self.param
+        try:
+            info = self.client.read_stage()
+        except zaber.ZaberError as exc:
+            self.log(f"linear_actuator: cannot read what the stage is: {exc}")
+            self.shutdown("no Zaber stage information", EXIT_NO_DEVICE)
+            return False
+        mismatch = zaber.check_stage(info, axis=p("axis"), microsteps_per_mm=p("microsteps_per_mm"),
+                                     resolution=p("resolution"), limit_min_mm=p("limit_min_mm"),
+                                     limit_max_mm=p("limit_max_mm"))
+        if mismatch:
+            self.log(f"linear_actuator: {p('port')}: {mismatch}")
+            self.shutdown("configuration does not fit the stage", EXIT_NO_DEVICE)
+            return False
+        self.log(f"Zaber stage on {p('port')}: {info.describe(p('microsteps_per_mm'))}")
         try:
             if self.client.ensure_homed(self.param("home_timeout_s")):
                 self.log("homed the stage (it had no reference position)")

@@ -1,10 +1,13 @@
 """rig_check: are the real rig's devices there? One line per missing device, exit 2.
 
-    python -m incipient_slip.nodes.rig_check rig_config:=config/rig.yaml
+    slip rig check --config FILE [--biotac-port PORT] [--pzt-device [CARD]]
+
+(the operator's spelling; `launch ... rig:=hardware` runs this node as its gate).
 
 Checks every device section of the rig configuration at once, each within `timeout_s`:
 the NatNet server answers a connect with its server info, the Zaber stage answers a status
-poll on its serial port, the UR controller accepts connections on RTDE (30004) and the
+poll on its serial port and what it reports (axis count, resolution, travel limits) fits its
+section (`zaber.check_stage`), the UR controller accepts connections on RTDE (30004) and the
 dashboard (29999, with its banner), the BioTac bridge (`biotac_port`, the launch files' arg of
 that name) answers the property request for a sensor whose serial number starts with "BT" and
 streams a frame of it (a bridge with no sensor, or one that never streams, is missing), and
@@ -24,7 +27,7 @@ import socket
 import time
 from concurrent.futures import ThreadPoolExecutor
 
-from incipient_slip.devices import biotac, natnet, pzt, rig_config, zaber
+from incipient_slip.devices import biotac, calibration, natnet, pzt, rig_config, zaber
 from incipient_slip.errors import UsageError
 from incipient_slip.graph.params import Param, ParamError, merge_params
 from incipient_slip.graph.runtime import Node, run_node
@@ -33,13 +36,15 @@ EXIT_MISSING = 2
 
 
 def apply_rig_config(node, section: str, explicit: dict | None) -> None:
-    """Fills `node.params` from `section` of the file in its `rig_config` parameter, keeping
-    every parameter given explicitly (`explicit`); ParamError names the file and the key."""
+    """Fills `node.params` from `section` of the file in its `rig_config` parameter and from the
+    calibration file it names (`devices.calibration`), keeping every parameter given explicitly
+    (`explicit`); ParamError names the file and the key."""
     path = node.param("rig_config")
     if not path:
         return
     try:
         values = rig_config.load_section(path, section)
+        values = {**values, **calibration.node_values(path, section, values)}
     except UsageError as exc:
         raise ParamError(str(exc)) from None
     explicit = dict(explicit or {})
@@ -88,14 +93,19 @@ def check_zaber(cfg: dict, timeout_s: float) -> str:
     except (serial.SerialException, OSError) as exc:
         return f"zaber: cannot open {port}: {exc}"
     try:
-        client = zaber.ZaberClient(link, device=int(cfg.get("device", 1)), axis=int(cfg.get("axis", 1)),
-                                   microsteps_per_mm=1.0, timeout_s=timeout_s / 3, name=port)
+        axis, steps_mm = int(cfg.get("axis", 1)), float(cfg.get("microsteps_per_mm", 20997.375))
+        client = zaber.ZaberClient(link, device=int(cfg.get("device", 1)), axis=axis,
+                                   microsteps_per_mm=steps_mm, timeout_s=timeout_s / 3, name=port)
         client.status()
+        mismatch = zaber.check_stage(client.read_stage(), axis=axis, microsteps_per_mm=steps_mm,
+                                     resolution=int(cfg.get("resolution", zaber.DEFAULT_RESOLUTION)),
+                                     limit_min_mm=float(cfg.get("limit_min_mm", 0.0)),
+                                     limit_max_mm=float(cfg.get("limit_max_mm", 50.0)))
     except zaber.ZaberError as exc:
         return f"zaber: {exc}"
     finally:
         link.close()
-    return ""
+    return f"zaber: {port}: {mismatch}" if mismatch else ""
 
 
 def check_ur5(cfg: dict, timeout_s: float) -> str:

@@ -54,9 +54,14 @@ from incipient_slip.messages import (
 )
 from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
-from incipient_slip.sim.protocols import collection_forces_kpa
-from incipient_slip.sim.rig import PeriodOutput, Rig
-from incipient_slip.sim.scene import SceneError, load_scene
+from incipient_slip.extras import needed
+
+try:
+    from incipient_slip.sim.protocols import collection_forces_kpa
+    from incipient_slip.sim.rig import PeriodOutput, Rig
+    from incipient_slip.sim.scene import SceneError, load_scene
+except ModuleNotFoundError as exc:      # a lab PC's lean install: name the [sim] extra
+    raise needed(exc) from None
 
 PROTOCOLS = ("closed_loop", "collection", "commanded")
 PAC_FRAME = PAC_SAMPLES_PER_FRAME

@@ -5,7 +5,7 @@ on the measured F_N (P_DC of /biotac/slow) towards the target of /grip/command.
     python -m incipient_slip.nodes.ur5 robot_address:=192.168.1.5
 
 One process of its own (`RobotLink`) owns ur-rtde's `RTDEControlInterface` and
-`RTDEReceiveInterface` (the optional `[robot]` extra); the node's thread only talks ZeroMQ. Safety of its own, whatever the
+`RTDEReceiveInterface` (the `[hardware]` extra); the node's thread only talks ZeroMQ. Safety of its own, whatever the
 controller sent: the target moves at most `max_step_kpa` per period (from the last target; the
 first from the measured F_N: the grip law's own rate limit, kept here too; the collection and
 identification launches, whose protocols redraw F_N, open it) and is clamped to
@@ -44,6 +44,7 @@ from dataclasses import dataclass
 from incipient_slip import control
 from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
+from incipient_slip.devices import calibration
 from incipient_slip.nodes.rig_check import apply_rig_config
 from incipient_slip.messages import BiotacSlow, GripCommand, RobotRecover, RobotState
 
@@ -174,7 +175,7 @@ class RobotLink:
             import rtde_control
             import rtde_receive
         except ImportError:
-            raise RobotError("ur-rtde is not installed: pip install 'incipient-slip[robot]' "
+            raise RobotError("ur-rtde is not installed: pip install -e '.[hardware]' "
                              "(wheels for CPython 3.10-3.12 on x86-64 Linux)") from None
         try:
             self.receive = rtde_receive.RTDEReceiveInterface(self.host, self.cfg.frequency_hz, RECEIVE_VARIABLES)
@@ -374,6 +375,10 @@ class UR5(Node):
         super().__init__("ur5", **kwargs)
         apply_rig_config(self, "ur5", kwargs.get("params"))
         p = self.param
+        if p("rig_config") and "gain_mm_per_kpa" not in (kwargs.get("params") or {}) and \
+                "press_gain" not in calibration.load(p("rig_config")):
+            self.warn(f"gain_mm_per_kpa is not calibrated: the default {p('gain_mm_per_kpa'):g} mm/kPa "
+                      f"(slow); slip calibrate press-gain --config {p('rig_config')} measures it")
         loop = PressLoop(p("gain_mm_per_kpa"), p("max_step_mm"), p("safety_limit_kpa"),
                          p("max_press_mm"), p("max_lift_mm"))
         self.cfg = LinkConfig(p("robot_address"), p("rtde_hz"), p("speed_m_s"), p("accel_m_s2"),
