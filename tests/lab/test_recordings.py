@@ -216,6 +216,20 @@ def test_a_real_rigs_recording_needs_its_spring_constant_and_takes_f_n_from_p_dc
     w.close()
     with pytest.raises(RecordingError, match="spring constant is unknown"):
         read_series(dst)
+    src = tmp_path / "hw"
+    src.mkdir()
+    dst.rename(src / "hw.mcap")
+    dst = src / "hw.mcap"
+    (tmp_path / "rig.yaml").write_text("calibration: cal.yaml\n")
+    no_spring = slip("dataset", "--from-recordings", str(src), "--out", str(tmp_path / "d0"), "--rig-config",
+                     str(tmp_path / "rig.yaml"))
+    assert no_spring.returncode == 2 and "slip calibrate spring" in no_spring.stderr
+    (tmp_path / "cal.yaml").write_text("spring: {spring_n_per_mm: 0.0327}\n")     # what slip calibrate writes
+    done = slip("dataset", "--from-recordings", str(src), "--out", str(tmp_path / "d1"), "--rig-config",
+                str(tmp_path / "rig.yaml"))
+    assert done.returncode == 0, done.stdout + done.stderr
+    report = json.loads((tmp_path / "d1" / "import_report.json").read_text())
+    assert report["imported"][0]["spring_n_per_mm"] == 0.0327
     data, notes = read_series(dst, spring_n_per_mm=0.0327)
     sim, _ = read_series(recording)
     assert notes.normal_force_from == "pdc"

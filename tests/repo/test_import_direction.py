@@ -26,7 +26,7 @@ ALLOWED = {
     "identify": {"control", "models", "messages"},
     "nodes": {"graph", "messages", "models", "sim", "control", "devices", "identify"},
     # a lab's workflow: collection sessions (launches) and recordings -> data sets
-    "lab": {"graph", "messages", "models", "sim", "control"},
+    "lab": {"graph", "messages", "models", "sim", "control", "devices"},
     "experiments": {"nodes", "graph", "messages", "models", "sim", "control", "devices", "cluster", "identify"},
     "cli": {"graph", "sim", "models", "experiments", "lab"},
     "__init__": set(),

@@ -23,6 +23,14 @@ def cmd_dataset(args) -> int:
         raise UsageError(f"--normal-force must be one of {', '.join(NORMAL_FORCE_SOURCES)}")
     if args.spring_n_per_mm is not None and not args.spring_n_per_mm > 0:
         raise UsageError(f"--spring-n-per-mm must be > 0, got {args.spring_n_per_mm}")
+    if args.rig_config and args.spring_n_per_mm is None:       # the rig's own calibration (slip calibrate spring)
+        from incipient_slip.devices import calibration
+        spring = calibration.load(args.rig_config).get("spring", {}).get("spring_n_per_mm")
+        if spring is None:
+            raise UsageError(f"{args.rig_config}: its calibration has no spring constant; run `slip calibrate "
+                             f"spring --config {args.rig_config}` or give --spring-n-per-mm")
+        args.spring_n_per_mm = float(spring)
+        print(f"spring constant {args.spring_n_per_mm:g} N/mm from the calibration of {args.rig_config}")
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {out} exists and is not a directory")
@@ -101,7 +109,10 @@ def register(subparsers) -> None:
     p.add_argument("--from-recordings", metavar="DIR", help="a session directory (slip collect) or a directory "
                    "of collection recordings (*.mcap) to import instead of simulating")
     p.add_argument("--spring-n-per-mm", type=float, metavar="K", help="--from-recordings: the spring constant "
-                   "(N/mm) measured on your rig; default: the simulated rig's for sim and emulated recordings")
+                   "(N/mm) measured on your rig (else --rig-config's calibration; default: the simulated rig's for "
+                   "sim and emulated recordings)")
+    p.add_argument("--rig-config", metavar="FILE", help="--from-recordings: your rig.yaml; the spring constant "
+                   "comes from the calibration it names (slip calibrate spring --config FILE)")
     p.add_argument("--normal-force", default="auto", metavar="auto|robot|pdc", help="--from-recordings: F_N per "
                    "period from the robot's applied force (robot), P_DC above its tare (pdc), or robot where "
                    "recorded else pdc (auto, the default)")

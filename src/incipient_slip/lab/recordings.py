@@ -213,8 +213,8 @@ def read_series(path: str | Path, *, spring_n_per_mm: float | None = None,
     y_end = data["mocap_y_mm"][last]
     if spring_n_per_mm is None:
         if meta.get("rig", "sim") == "hardware" or not meta:
-            raise RecordingError(path, "the spring constant is unknown: give --spring-n-per-mm (measured on "
-                                       "the rig; docs/hardware/setup.md)")
+            raise RecordingError(path, "the spring constant is unknown: give --rig-config FILE (its "
+                                       "calibration: slip calibrate spring) or --spring-n-per-mm")
         spring_n_per_mm = spring_of_scene(meta)
     if not (math.isfinite(spring_n_per_mm) and spring_n_per_mm > 0):
         raise RecordingError(path, f"spring constant {spring_n_per_mm} N/mm is not a positive number")
