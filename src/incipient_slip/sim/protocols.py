@@ -4,11 +4,12 @@ Both call `Rig.step_period` once per 500 ms period, exactly as the rig_sim node 
 """
 from __future__ import annotations
 
-from typing import Callable, Iterator
+from typing import TYPE_CHECKING, Callable, Iterator
 
 import numpy as np
 
-from .rig import PeriodOutput, Rig
+if TYPE_CHECKING:          # the draws alone (force_schedule on a lab PC) need no simulator, scipy or numba
+    from .rig import PeriodOutput, Rig
 
 # 1.1, 1.5, ..., 5.9 kPa (13 values, paper)
 COLLECTION_FORCES_KPA = np.round(np.arange(1.1, 5.9 + 1e-9, 0.4), 1)
