@@ -350,3 +350,34 @@ def test_the_live_json_bytes_parse_to_the_export_json_of_every_message_type(name
     assert json.loads(_json(obj)) == json.loads(json.dumps(obj, allow_nan=False))
     assert json.loads(_json(raw_audio_block(np.arange(44, dtype=np.int16), 10**18))) == \
         json.loads(json.dumps(raw_audio_block(np.arange(44, dtype=np.int16), 10**18)))
+
+
+@pytest.mark.parametrize("subprotocol", ["foxglove.websocket.v1", "foxglove.sdk.v1"])
+def test_a_client_of_either_subprotocol_name_connects_and_is_answered_with_its_own(view, subprotocol):
+    """The official @foxglove/ws-protocol client offers only foxglove.websocket.v1, which
+    foxglove-sdk alone answers with HTTP 400 (tests/graph/test_official_client.py runs it)."""
+    view.offer(SlipEstimate.TOPIC, "SlipEstimate")
+    client = client_of(view, subprotocol=subprotocol)
+    assert client.ws.subprotocol == subprotocol
+    client.until(lambda: SlipEstimate.TOPIC in client.topics())
+    client.subscribe([SlipEstimate.TOPIC])
+    client.until(lambda: view.forward(SlipEstimate.TOPIC, encode(estimate(0))), what="subscription active")
+    client.until(lambda: client.messages, what="a message")
+    assert client.messages[0].payload["seq"] == 0
+    client.close()
+
+
+def test_a_client_offering_no_foxglove_subprotocol_is_refused_and_one_sending_garbage_is_closed(view):
+    from websockets.exceptions import InvalidStatus
+    from websockets.sync.client import connect
+    with pytest.raises(InvalidStatus, match="400"):
+        connect(f"ws://127.0.0.1:{view.port}", subprotocols=["chat.v2"], proxy=None, open_timeout=10)
+    import socket
+    with socket.create_connection(("127.0.0.1", view.port), timeout=10) as sock:
+        sock.sendall(b"x" * 70_000)            # no HTTP head: the front closes the connection
+        try:
+            assert sock.recv(100) == b""
+        except ConnectionResetError:           # closed with our bytes unread: a reset
+            pass
+    client_of(view).close()                    # and still serves the next client
+    assert view.front.refused == 1

@@ -23,8 +23,10 @@ import time
 from incipient_slip.errors import EXIT_USAGE, UsageError
 from incipient_slip.graph import discovery
 from incipient_slip.graph.bag_export import AUDIO_RATE_HZ
+from incipient_slip.graph.launch.topology import topics_from_env
 from incipient_slip.graph.live_view import (
-    AUDIO_BLOCK_FRAMES, EXTRA_HINT, PAC_VIEW_HZ, LiveView, is_loopback,
+    AUDIO_BLOCK_FRAMES, DRAIN_QUIET_S, DRAIN_TIMEOUT_S, EXTRA_HINT, PAC_VIEW_HZ, LiveView,
+    is_loopback,
 )
 from incipient_slip.graph.params import Param
 from incipient_slip.graph.runtime import ANY_TOPIC, POLL_S, Node, run_node
@@ -68,11 +70,16 @@ class FoxgloveBridge(Node):
                              audio_rate_hz=self.param("audio_rate_hz"),
                              pac_view_hz=self.param("pac_view_hz"),
                              audio_block_frames=self.param("audio_block_frames"))
-        self.on_shutdown(self.view.close)
-        self.log(f"serving ws://{host}:{self.view.port} (read-only; clients must speak the "
-                 f"foxglove.sdk.v1 subprotocol: Foxglove, Lichtblick since its PR #819)")
-        self.create_raw_subscription(self.on_message)
+        self.on_shutdown(self.finish)
         self.untyped: set[str] = set()     # announced topics of no known type (replay's "raw")
+        self.heard = 0                     # messages received from the graph
+        # a launch's topics, from its topology: advertised before any node has started
+        for topic, type_name in topics_from_env(os.environ).items():
+            if not self.view.offer(topic, type_name):
+                self.untyped.add(topic)
+        self.log(f"serving ws://{host}:{self.view.port} (read-only; subprotocol foxglove.websocket.v1 "
+                 f"or foxglove.sdk.v1: Foxglove, Lichtblick, the @foxglove/ws-protocol client)")
+        self.create_raw_subscription(self.on_message)
         self.create_timer(1.0, self.offer_announced)
         self.create_timer(FOLLOW_S, self.follow_clients)
         self.offer_announced()
@@ -81,10 +88,27 @@ class FoxgloveBridge(Node):
             self.wait_for_client(self.param("wait_for_client_s"))
 
     def on_message(self, topic: str, body: bytes, recv_ns: int) -> None:
+        self.heard += 1
         try:
             self.view.forward(topic, body)
         except MessageError as exc:
             self.warn(throttle_s=1.0, key=("bridge-drop", topic), text=f"dropped malformed message: {exc}")
+
+    def finish(self) -> None:
+        """At shutdown: what the graph sent before it ended still reaches the clients. Reads
+        what is queued from the graph (until nothing new for DRAIN_QUIET_S), waits until the
+        server's queues have gone out to the clients (`LiveView.drain`), then stops the server;
+        each step at most DRAIN_TIMEOUT_S (a stalled client is not waited for)."""
+        deadline = last = time.monotonic()
+        deadline += DRAIN_TIMEOUT_S
+        while (now := time.monotonic()) - last < DRAIN_QUIET_S and now < deadline:
+            heard = self.heard
+            self.spin_once(DRAIN_QUIET_S / 4)
+            if self.heard != heard:
+                last = time.monotonic()
+        if not self.view.drain():
+            self.warn(f"a client still had messages queued after {DRAIN_TIMEOUT_S:g} s; closing")
+        self.view.close()
 
     def offer_announced(self) -> None:
         """Advertises the topics the graph's nodes announce, before their first message."""
