@@ -108,3 +108,68 @@ def test_the_official_client_connects_and_every_schema_is_valid_under_ajv_strict
     assert [int(m["logTime"]) for m in got] == [m.stamp_ns for m in sent]
     assert not [m["errors"] for m in got if m["errors"]]
     assert client.events("error") == [] and client.events("close")
+
+
+WATCHED = ("/slip/estimate", "/grip/command", "/robot/state", "/object/pose")
+
+
+@pytest.mark.timeout(300)
+def test_the_official_client_receives_every_message_of_a_lock_step_run_on_one_timeline(
+        npm_dir, graph, probe, tmp_path):
+    """`launch stabilize.yaml view:=foxglove` as a user types it (lock-step: the run waits for
+    the viewer): every /slip/estimate, /grip/command, /robot/state and /object/pose message
+    reaches the official client, equal to what the graph carried and logged at its stamp; and
+    every topic of the run, heartbeats and events included, is on the run's simulated time."""
+    from test_foxglove_bridge_launch import Launch
+    from incipient_slip.messages import Heartbeat
+    from incipient_slip.nodes.rig_sim import PERIOD_NS
+
+    for msg_type in MESSAGE_TYPES.values():
+        probe.listen(msg_type)
+    launch = Launch(graph, tmp_path / "summary.json", "view:=foxglove", "view_port:=0")
+    probe.until(lambda: launch.url() is not None, 60, procs=[launch.proc], what="the bridge's URL")
+    # the probe hears the run from its first message: it connects to every node before the
+    # bridge lets the run start (no node sends before the viewer subscribed)
+    nodes = probe.nodes(["rig_sim", "estimator", "grip_controller", "supervisor"], procs=[launch.proc])
+    probe.until(lambda: {n.endpoint for n in nodes.values()} <= probe.node._connected, 30,
+                procs=[launch.proc], what="probe connected to every node")
+    client = OfficialClient(npm_dir, launch.url(), list(WATCHED), tmp_path / "events.jsonl")
+    probe.until(lambda: launch.proc.poll() is not None, 240, what="the run's end")
+    assert launch.wait() in (0, 1), launch.log()
+    stderr = client.wait_exit(60)             # the bridge closes the connection once drained
+    while True:                               # what the probe has still to read
+        before = sum(map(len, probe.received.values()))
+        probe.node.spin_once(1.0)
+        if sum(map(len, probe.received.values())) == before:
+            break
+
+    assert client.events("error") == [], stderr
+    assert {e["topic"]: e["error"] for e in client.events("schema") if e["error"]} == {}
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    end_ns = (summary["steps"] + 2) * PERIOD_NS
+    ratios = {}
+    for topic in WATCHED:
+        carried = {m.seq: m for m in probe.received[topic]}
+        got = {}
+        for e in client.messages(topic):
+            assert e["errors"] is None, (topic, e["errors"])
+            got.setdefault(e["payload"]["seq"], e)
+        published = max([*carried, *got]) + 1
+        ratios[topic] = f"{len(got)}/{published}"
+        assert sorted(carried) == list(range(len(carried))), (topic, "the probe missed messages")
+        assert sorted(got) == list(range(published)), (topic, ratios[topic], launch.log())
+        for seq, msg in carried.items():
+            assert got[seq]["payload"] == json.loads(json.dumps(to_export_json(msg))), (topic, seq)
+            assert int(got[seq]["logTime"]) == msg.stamp_ns, (topic, seq)
+        times = [int(e["logTime"]) for e in client.messages(topic)]
+        assert times == sorted(times) and 0 < times[0] and times[-1] <= end_ns, (topic, times[:3], times[-3:])
+    print(f"delivered/published to the official client: {ratios}")
+    # one timeline: every topic the graph carried, per publisher, in order and within the run
+    for topic, msgs in probe.received.items():
+        streams: dict[str, list[int]] = {}
+        for m in msgs:
+            streams.setdefault(m.node if isinstance(m, Heartbeat) else "", []).append(m.stamp_ns)
+        for source, stamps in streams.items():
+            assert stamps == sorted(stamps), (topic, source, "stamps go back")
+            assert 0 < stamps[0] and stamps[-1] <= end_ns, (topic, source, stamps[0], stamps[-1], end_ns)
+    assert {Heartbeat.TOPIC, "/run/event", "/grip/command", "/sim/truth"} <= {t for t, m in probe.received.items() if m}

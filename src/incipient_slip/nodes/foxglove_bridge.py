@@ -34,6 +34,7 @@ from incipient_slip.messages import PAC_RATE_HZ, Message, MessageError
 
 __all__ = ["FoxgloveBridge", "register"]
 
+SETTLE_S = 0.25     # a viewer's subscriptions are complete when they have not changed this long
 FOLLOW_S = 0.1      # how often the topics received follow what the clients subscribe to
 
 
@@ -133,6 +134,13 @@ class FoxgloveBridge(Node):
             if time.monotonic() > deadline:
                 self.warn(f"no viewer subscribed within {timeout_s:g} s; going on")
                 return
+        # a client subscribes to its topics one op after another (the official client, one per
+        # channel): the start waits until its set has not changed for SETTLE_S (at most 2 s)
+        watched, since, settle_end = self.view.watched(), time.monotonic(), time.monotonic() + 2.0
+        while time.monotonic() - since < SETTLE_S and time.monotonic() < settle_end and not self.stopping:
+            time.sleep(SETTLE_S / 5)
+            if (now := self.view.watched()) != watched:
+                watched, since = now, time.monotonic()
         self.follow_clients()       # before this node's hello: the sources' first messages come
 
 
