@@ -54,7 +54,7 @@ class FoxgloveBridge(Node):
                                          "sources) until a viewer subscribes, at most this long"),
               "priority": Param("low", choices=("idle", "low", "normal"),
                                 help="CPU priority: idle = only CPU time no node wants (SCHED_IDLE), "
-                                     "low = nice 10, normal = as the graph's nodes")}
+                                     "low = nice +10 (relative to the graph's), normal = as the graph's nodes")}
     INPUTS = {ANY_TOPIC: Message}       # every topic of the graph, like the recorder
     OUTPUTS: dict = {}
 
@@ -159,12 +159,15 @@ def lower_priority(priority: str) -> None:
     if priority == "normal":
         return
     idle = priority == "idle" and hasattr(os, "SCHED_IDLE")
+    # "low" is 10 below the nice this process started with (the graph's, which may be niced
+    # itself), not an absolute nice 10: under `nice -n 10` the graph's nodes are at 10 already
+    low = min(19, os.getpriority(os.PRIO_PROCESS, 0) + 10)
     for tid in _thread_ids():
         try:
             if idle:
                 os.sched_setscheduler(tid, os.SCHED_IDLE, os.sched_param(0))
-            else:                           # low, or idle without SCHED_IDLE (not Linux): nice 10
-                os.setpriority(os.PRIO_PROCESS, tid, max(os.getpriority(os.PRIO_PROCESS, tid), 10))
+            else:                           # low, or idle without SCHED_IDLE (not Linux): nice +10
+                os.setpriority(os.PRIO_PROCESS, tid, max(os.getpriority(os.PRIO_PROCESS, tid), low))
         except OSError:                     # a thread that ended meanwhile
             pass
     if os.getsid(0) == os.getpid():
