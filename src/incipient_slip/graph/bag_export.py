@@ -4,7 +4,9 @@ Those viewers do not read msgpack (PlotJuggler does, from the recording as it is
 export writes, per recorded topic, a channel with ``message_encoding="json"`` and a
 ``jsonschema`` schema of the JSON object, and for every BiotacPac topic a second channel
 ``<topic>/audio`` of Foxglove's well-known ``foxglove.RawAudio`` (pcm-s16, mono, upsampled to
-8800 Hz: see AUDIO_RATE_HZ), for the Audio panel. Receive times, stamps and seqs are kept.
+8800 Hz: see AUDIO_RATE_HZ), for the Audio panel. Each message is logged at its stamp (MCAP log
+and publish time), the run's one time base, as the live view logs it (docs/graph.md, "One time
+base"); the receive times stay in the recording. Seqs are kept.
 
 JSON of one message: the wire fields (``type``, ``v``, ``stamp_ns``, ``seq``, the message's
 fields) plus ``stamp`` = ``{"sec", "nsec"}``, the stamp as Foxglove's time type, exact for
@@ -290,7 +292,7 @@ def export_foxglove(src: str | os.PathLike, dst: str | os.PathLike,
                     if cid is None:
                         cid = channels[topic] = _channel(out, topic, rec.type_name, audio)
                     out.write_to(cid, topic, json.dumps(obj, allow_nan=False).encode(),
-                                 log_time_ns=rec.log_time_ns, stamp_ns=rec.stamp_ns, seq=rec.sequence)
+                                 log_time_ns=rec.stamp_ns, stamp_ns=rec.stamp_ns, seq=rec.sequence)
                 if progress is not None:
                     progress(1)
             report.counts = dict(out.counts)
