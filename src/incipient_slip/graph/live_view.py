@@ -1,8 +1,11 @@
 """The live view: a graph's topics as Foxglove WebSocket channels, served by `foxglove-sdk`.
 
 `LiveView` owns one foxglove-sdk server (its own `Context`, so nothing else logs to it) and one
-channel per topic, made the first time the topic is offered (from a node's announcement) or
-heard. A channel carries the same JSON as `slip bag export --foxglove`
+channel per topic, made the first time the topic is offered (from the launch's topology or a
+node's announcement) or heard. The SDK listens on a loopback port of its own; clients reach it
+through `SubprotocolFront` (graph/live_view_front.py) on the public port, which lets in clients
+that offer the subprotocol under its older name `foxglove.websocket.v1` (the SDK refuses them)
+and tells when the last byte went out to a client (`drain`). A channel carries the same JSON as `slip bag export --foxglove`
 (`bag_export.to_export_json`, schema `bag_export.export_schema`: one source, the messages
 contract) with the message's `stamp_ns` as its log time; every BiotacPac topic gets a second
 channel `<topic>/audio` of `foxglove.RawAudio`.

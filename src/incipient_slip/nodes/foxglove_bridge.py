@@ -3,7 +3,10 @@
     launch stabilize.yaml view:=foxglove       # in a launch
     slip view [--port 8765] [--graph NAME]      # attached to a graph already running
 
-Connect the viewer to ws://127.0.0.1:8765 (docs/tools.md, "Live view"). The protocol has no
+Connect the viewer to ws://127.0.0.1:8765 (docs/tools.md, "Live view"), with either name of the
+subprotocol (foxglove.sdk.v1, foxglove.websocket.v1). In a launch it advertises the launch's
+topics ($SLIP_TOPICS) before any node sends, may hold the start until a viewer subscribes
+(`wait_for_client_s`), and at shutdown sends what it still holds before it closes (`finish`). The protocol has no
 authentication: the bridge binds the loopback address unless `host` says otherwise, and then
 prints a warning. It only reads the graph; the server refuses client publishing, parameters and
 services (graph/live_view.py). Needs the `[view]` extra (foxglove-sdk).
@@ -42,7 +45,9 @@ class FoxgloveBridge(Node):
     """Serves every topic of the graph as a Foxglove WebSocket channel (JSON + JSON Schema)."""
 
     PARAMS = {"host": "127.0.0.1", "port": 8765,
-              "backlog": Param(1024, lo=1, help="messages queued per client; the oldest go first"),
+              # a lock-step run sends ~4000 messages a second on the layout's topics: 1024 was a
+              # quarter second of lag before a client that keeps up on average lost messages
+              "backlog": Param(16384, lo=1, help="messages queued per client; the oldest go first"),
               "audio_rate_hz": Param(AUDIO_RATE_HZ, lo=PAC_RATE_HZ,
                                      help=f"P_AC audio rate: a multiple of {PAC_RATE_HZ} Hz"),
               "audio_block_frames": Param(AUDIO_BLOCK_FRAMES, lo=1, help="P_AC frames per audio "
