@@ -17,6 +17,7 @@ pytest.importorskip("foxglove", reason="the [view] extra (foxglove-sdk) is not i
 from jsonschema import Draft202012Validator  # noqa: E402
 
 from foxglove_client import FoxgloveClient  # noqa: E402
+from incipient_slip.graph import discovery  # noqa: E402
 from incipient_slip.graph.bag_export import RAW_AUDIO_SCHEMA, raw_audio_block, to_export_json  # noqa: E402
 from incipient_slip.graph.live_view import LiveView, _json, is_loopback  # noqa: E402
 from incipient_slip.messages import MESSAGE_TYPES, BiotacPac, SlipEstimate, encode  # noqa: E402
@@ -388,3 +389,20 @@ def test_a_client_offering_no_foxglove_subprotocol_is_refused_and_one_sending_ga
             pass
     client_of(view).close()                    # and still serves the next client
     assert view.front.refused == 1
+
+
+def test_a_launched_bridge_advertises_the_launchs_topics_before_any_node_has_started(graph):
+    """The launcher tells the bridge the launch's topics ($SLIP_TOPICS): a viewer sees and can
+    subscribe to every one before the rig has started (they were advertised when a node
+    announced them or when first heard, seconds into a lock-step run)."""
+    topics = {"/slip/estimate": "SlipEstimate", "/robot/state": "RobotState", "/object/pose": "ObjectPose",
+              "/replayed": "raw"}
+    graph.env["SLIP_TOPICS"] = json.dumps(topics)
+    proc = graph.spawn(["python", "-m", "incipient_slip.nodes.foxglove_bridge", "port:=0"])
+    url, lines = served_url(proc)
+    client = FoxgloveClient(url)
+    client.until(lambda: {"/slip/estimate", "/robot/state", "/object/pose"} <= set(client.topics()),
+                 what="the launch's typed topics advertised")
+    assert "/replayed" not in client.topics()          # of no known type: when first heard
+    assert {info.name for info in discovery.scan(graph.dir)} == {"foxglove_bridge"}
+    client.close()
