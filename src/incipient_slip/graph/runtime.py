@@ -277,7 +277,7 @@ class Node:
         self._stop = False
         self._closed = False
         self._t0 = time.monotonic()
-        # simulated time: the latest stamp sent (module doc, CLOCK_ENV); None: the wall clock
+        # simulated time: the latest stamp sent (see CLOCK_ENV); None: the wall clock
         self.run_clock_ns: int | None = 1 if os.environ.get(CLOCK_ENV) == "sim" else None
         self._timers: list[Timer] = []
         self._subs: dict[str, list[Subscription]] = {}
