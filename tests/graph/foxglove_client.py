@@ -35,6 +35,7 @@ class FoxgloveClient:
 
     url: str
     max_queue: int = 16
+    subprotocol: str = SUBPROTOCOL
     server_info: dict | None = None
     channels: dict[int, dict] = field(default_factory=dict)        # channel id -> advertisement
     statuses: list[dict] = field(default_factory=list)
@@ -43,7 +44,7 @@ class FoxgloveClient:
     _subs: dict[int, int] = field(default_factory=dict)             # subscription id -> channel id
 
     def __post_init__(self):
-        self._connection = connect(self.url, subprotocols=[SUBPROTOCOL], proxy=None, compression=None,
+        self._connection = connect(self.url, subprotocols=[self.subprotocol], proxy=None, compression=None,
                                    max_size=None, max_queue=self.max_queue, open_timeout=10)
         self.ws = self._connection.__enter__()
 

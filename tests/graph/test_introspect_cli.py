@@ -94,6 +94,27 @@ def test_topic_pub_refuses_any_topic_on_a_graph_with_real_device_nodes(graph, pr
     assert code == 2 and "real device nodes (ur5)" in err, err
 
 
+def test_topic_pub_prints_the_stamp_it_sends(graph, probe):
+    got = probe.listen(SimTruth)
+    code, out, err = slip(graph, probe, "topic", "pub", "/sim/truth", "{period: 4}", spin=True)
+    assert code == 0, err
+    probe.until(lambda: got, what="the published SimTruth")
+    printed = json.loads(out.split(": ", 1)[1])
+    assert printed["stamp_ns"] == got[0].stamp_ns > 0 and printed["seq"] == got[0].seq
+
+
+def test_topic_pub_refuses_a_graph_with_a_recorder_without_force(graph, probe, tmp_path):
+    """A message from the side would go into the run's recording as if the run had sent it."""
+    got = probe.listen(SimTruth)
+    proc = graph.spawn(["python", "-m", "incipient_slip.graph.recorder", f"path:={tmp_path / 'run.mcap'}"])
+    probe.nodes(["recorder"], procs=[proc])
+    code, out, err = slip(graph, probe, "topic", "pub", "/sim/truth", "{period: 1}")
+    assert code == 2 and "recorder records every message" in err and "--force" in err, err
+    code, out, err = slip(graph, probe, "topic", "pub", "/sim/truth", "{period: 1}", "--force", spin=True)
+    assert code == 0, err
+    probe.until(lambda: got, what="the forced SimTruth")
+
+
 @pytest.fixture
 def controller(graph, probe):
     """A grip_controller process with two parameters given on its command line, announced."""

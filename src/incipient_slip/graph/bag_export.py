@@ -4,7 +4,9 @@ Those viewers do not read msgpack (PlotJuggler does, from the recording as it is
 export writes, per recorded topic, a channel with ``message_encoding="json"`` and a
 ``jsonschema`` schema of the JSON object, and for every BiotacPac topic a second channel
 ``<topic>/audio`` of Foxglove's well-known ``foxglove.RawAudio`` (pcm-s16, mono, upsampled to
-8800 Hz: see AUDIO_RATE_HZ), for the Audio panel. Receive times, stamps and seqs are kept.
+8800 Hz: see AUDIO_RATE_HZ), for the Audio panel. Each message is logged at its stamp (MCAP log
+and publish time), the run's one time base, as the live view logs it (docs/graph.md, "One time
+base"); the receive times stay in the recording. Seqs are kept.
 
 JSON of one message: the wire fields (``type``, ``v``, ``stamp_ns``, ``seq``, the message's
 fields) plus ``stamp`` = ``{"sec", "nsec"}``, the stamp as Foxglove's time type, exact for
@@ -27,7 +29,7 @@ import numpy as np
 from incipient_slip.graph.bag import BagError, BagWriter, bag_info, json_schema, read_bag
 from incipient_slip.messages import MESSAGE_TYPES, PAC_RATE_HZ, BiotacPac, Message
 
-__all__ = ["export_foxglove", "export_schema", "to_export_json", "raw_audio", "raw_audio_block", "RAW_AUDIO_SCHEMA",
+__all__ = ["export_foxglove", "export_schema", "standard_keywords", "to_export_json", "raw_audio", "raw_audio_block", "RAW_AUDIO_SCHEMA",
            "ExportReport", "JS_SAFE_INT", "AudioUpsampler", "AUDIO_RATE_HZ"]
 
 JS_SAFE_INT = (1 << 53) - 1     # the largest integer a JavaScript number holds exactly
@@ -106,11 +108,28 @@ def export_schema(msg_type: type[Message]) -> dict:
         else:                   # bool, str, and the type/v constants
             props[name] = prop
     props["stamp"] = {**_TIME, "description": "stamp_ns as Foxglove's time type (exact)"}
-    return {"$schema": "https://json-schema.org/draft/2020-12/schema",
-            "title": wire.get("title", msg_type.__name__),
-            "description": (wire.get("description") or "") + " (JSON export of the msgpack wire form)",
-            "type": "object", "properties": props, "required": list(props),
-            "additionalProperties": False}
+    return standard_keywords({"$schema": "https://json-schema.org/draft/2020-12/schema",
+                              "title": wire.get("title", msg_type.__name__),
+                              "description": (wire.get("description") or "") + " (JSON export of the msgpack wire form)",
+                              "type": "object", "properties": props, "required": list(props),
+                              "additionalProperties": False})
+
+
+def standard_keywords(schema):
+    """`schema` with only standard JSON Schema keywords: the wire schema's own `x-` keywords
+    (messages/schema.py: the msgpack type, unit, NaN, byte limits) of each subschema go into its
+    `$comment`, as a JSON object text. Validators in strict mode (Ajv's default) refuse a
+    schema with a keyword they do not know; `$comment` is for exactly this."""
+    if isinstance(schema, list):
+        return [standard_keywords(s) for s in schema]
+    if not isinstance(schema, dict):
+        return schema
+    ours = {k: v for k, v in schema.items() if k.startswith("x-")}
+    out = {k: (v if k in ("const", "enum", "default", "examples") else standard_keywords(v))
+           for k, v in schema.items() if not k.startswith("x-")}
+    if ours:
+        out["$comment"] = json.dumps(ours, separators=(",", ":"), sort_keys=True)
+    return out
 
 
 @dataclass
@@ -273,7 +292,7 @@ def export_foxglove(src: str | os.PathLike, dst: str | os.PathLike,
                     if cid is None:
                         cid = channels[topic] = _channel(out, topic, rec.type_name, audio)
                     out.write_to(cid, topic, json.dumps(obj, allow_nan=False).encode(),
-                                 log_time_ns=rec.log_time_ns, stamp_ns=rec.stamp_ns, seq=rec.sequence)
+                                 log_time_ns=rec.stamp_ns, stamp_ns=rec.stamp_ns, seq=rec.sequence)
                 if progress is not None:
                     progress(1)
             report.counts = dict(out.counts)

@@ -12,6 +12,7 @@ can.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -192,6 +193,11 @@ def cmd_topic_pub(args) -> int:
         if devices:
             raise UsageError(f"graph runs real device nodes ({', '.join(devices)}); "
                              f"pass --force to publish on it")
+        recording = sorted(i.name for i in nodes if i.subscribes.get(ANY_TOPIC) == "raw")
+        if recording:
+            raise UsageError(f"{', '.join(recording)} records every message of this graph: a message "
+                             f"from slip topic pub would go into the run's recording (another "
+                             f"publisher, another clock); pass --force if you mean it")
     # a reader "on demand" (the viewer bridge) subscribes only while its own clients want the topic
     readers = [i.name for i in nodes if args.topic in i.subscribes
                or i.subscribes.get(ANY_TOPIC) not in (None, ON_DEMAND)]
@@ -209,9 +215,11 @@ def cmd_topic_pub(args) -> int:
                   f"({', '.join(readers)}) subscribed after {args.wait:g} s; publishing to those",
                   flush=True)
         for i in range(args.times):
-            seq = node.pub.publish(msg)
+            # stamped here (stamp 0 = now, wall clock), so that what is printed is what is sent
+            sent = msg if msg.stamp_ns else dataclasses.replace(msg, stamp_ns=time.time_ns())
+            seq = node.pub.publish(sent)
             print(f"published {type(msg).__name__} seq {seq} on {args.topic}: "
-                  f"{json.dumps(to_plain(msg), default=str)}", flush=True)
+                  f"{json.dumps(to_plain(dataclasses.replace(sent, seq=seq)), default=str)}", flush=True)
             if i + 1 < args.times:
                 time.sleep(1.0 / args.rate)
     return 0

@@ -1,8 +1,11 @@
 """The live view: a graph's topics as Foxglove WebSocket channels, served by `foxglove-sdk`.
 
 `LiveView` owns one foxglove-sdk server (its own `Context`, so nothing else logs to it) and one
-channel per topic, made the first time the topic is offered (from a node's announcement) or
-heard. A channel carries the same JSON as `slip bag export --foxglove`
+channel per topic, made the first time the topic is offered (from the launch's topology or a
+node's announcement) or heard. The SDK listens on a loopback port of its own; clients reach it
+through `SubprotocolFront` (graph/live_view_front.py) on the public port, which lets in clients
+that offer the subprotocol under its older name `foxglove.websocket.v1` (the SDK refuses them)
+and tells when the last byte went out to a client (`drain`). A channel carries the same JSON as `slip bag export --foxglove`
 (`bag_export.to_export_json`, schema `bag_export.export_schema`: one source, the messages
 contract) with the message's `stamp_ns` as its log time; every BiotacPac topic gets a second
 channel `<topic>/audio` of `foxglove.RawAudio`.
@@ -29,6 +32,7 @@ from __future__ import annotations
 import ipaddress
 import json
 import threading
+import time
 
 import msgspec
 import numpy as np
@@ -37,6 +41,7 @@ from incipient_slip.graph.bag_export import (
     AUDIO_RATE_HZ, AUDIO_SUFFIX, RAW_AUDIO_SCHEMA, AudioUpsampler, export_schema, raw_audio_block,
     to_export_json,
 )
+from incipient_slip.graph.live_view_front import SubprotocolFront
 from incipient_slip.messages import (
     MESSAGE_TYPES, PAC_RATE_HZ, PAC_SAMPLES_PER_FRAME, BiotacPac, decode_any,
 )
@@ -46,6 +51,8 @@ __all__ = ["LiveView", "is_loopback", "EXTRA_HINT"]
 EXTRA_HINT = "the live view needs foxglove-sdk: pip install 'incipient-slip[view]'"
 PAC_VIEW_HZ = 10.0          # P_AC frames a second on the BiotacPac channel (see the module doc)
 AUDIO_BLOCK_FRAMES = 10     # P_AC frames per RawAudio message: 100 ms
+DRAIN_QUIET_S = 0.3         # `drain`: no byte to any client this long means the queues are empty
+DRAIN_TIMEOUT_S = 5.0
 _FRAME_NS = PAC_SAMPLES_PER_FRAME * 1_000_000_000 // PAC_RATE_HZ
 
 
@@ -81,10 +88,16 @@ class LiveView:
         self.subscribed = threading.Event()           # set when a client first subscribes
         self.channels: dict[str, object] = {}         # topic -> foxglove.Channel
         self._audio: dict[str, _AudioBlocks] = {}
+        # the SDK on a loopback port of its own, behind the front that every client reaches
         self.server = foxglove.start_server(
-            name=name, host=host, port=port, capabilities=[], context=self.context,
+            name=name, host="127.0.0.1", port=0, capabilities=[], context=self.context,
             message_backlog_size=backlog, server_listener=_listener(self.subscribed))
-        self.host, self.port = host, self.server.port
+        try:
+            self.front = SubprotocolFront(host, port, self.server.port)
+        except OSError:
+            self.server.stop()
+            raise
+        self.host, self.port = host, self.front.port
 
     def offer(self, topic: str, type_name: str) -> bool:
         """Advertises `topic` (a message type name of the contract) if it is not yet; False when
@@ -132,7 +145,19 @@ class LiveView:
         self._pac_shown[topic] = bucket
         return True
 
+    def drain(self, quiet_s: float = DRAIN_QUIET_S, timeout_s: float = DRAIN_TIMEOUT_S) -> bool:
+        """Waits until no byte has gone to a client for `quiet_s` (what the server queued for
+        the clients has gone out; a stalled client's queue never does), at most `timeout_s`.
+        True if it went quiet."""
+        deadline = time.monotonic() + timeout_s
+        while self.front.quiet_for() < quiet_s:
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(min(quiet_s, 0.05))
+        return True
+
     def close(self) -> None:
+        self.front.close()
         self.server.stop()
 
     def _open(self, topic: str, msg_type) -> object:

@@ -74,6 +74,10 @@ READERS_ENV = "SLIP_READERS"
 # them without being its writer (a forged command or state; counted in `refused_writers`, one warning
 # each). Unset (a node started by hand, a recorder): every publisher is accepted.
 WRITERS_ENV = "SLIP_WRITERS"
+# the run's time base: "sim" = its stamps are the simulated time from 0 (rig_sim's), so a message
+# stamped "now" (stamp 0) and a heartbeat carry the latest stamp this node sent (1 ns before
+# any), never the wall clock; unset = wall clock (docs/graph.md, "One time base")
+CLOCK_ENV = "SLIP_CLOCK"
 # Each node, once its subscriptions are made, also subscribes HELLO + its name: a subscription no
 # one publishes on, whose XPUB message tells a publisher WHICH node is now subscribed (plain XPUB
 # subscription messages carry no identity). 0xFF sorts after every "/..." topic, which matters:
@@ -105,7 +109,11 @@ class Publisher:
         else:
             seq = self.seq
             self.seq = seq + 1
-        body = self._encode(msg, msg.stamp_ns or time.time_ns(), seq)
+        stamp = msg.stamp_ns or self.node._stamp_now()
+        node = self.node
+        if node.run_clock_ns is not None and stamp > node.run_clock_ns:
+            node.run_clock_ns = stamp
+        body = self._encode(msg, stamp, seq)
         if self.latched:
             self.last = [self.frame, body]
         self._send_part(self.frame, zmq.SNDMORE)
@@ -269,6 +277,8 @@ class Node:
         self._stop = False
         self._closed = False
         self._t0 = time.monotonic()
+        # simulated time: the latest stamp sent (see CLOCK_ENV); None: the wall clock
+        self.run_clock_ns: int | None = 1 if os.environ.get(CLOCK_ENV) == "sim" else None
         self._timers: list[Timer] = []
         self._subs: dict[str, list[Subscription]] = {}
         self._raw_subs: list[RawSubscription] = []
@@ -773,8 +783,11 @@ class Node:
             except Exception:
                 self.warn(throttle_s=_LOG_EVERY_S, key=("timer", id(timer)), text=f"timer callback raised:\n{traceback.format_exc()}")
 
+    def _stamp_now(self) -> int:
+        return self.run_clock_ns or time.time_ns()
+
     def _heartbeat(self) -> None:
-        self._hb_pub.publish(M.Heartbeat(node=self.name, pid=os.getpid(),
+        self._hb_pub.publish(M.Heartbeat(node=self.name, pid=os.getpid(), stamp_ns=self._stamp_now(),
                                          uptime_s=time.monotonic() - self._t0,
                                          malformed_dropped=self.malformed, seq_gaps=self.seq_gaps))
 

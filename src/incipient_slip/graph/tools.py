@@ -296,7 +296,7 @@ def register_bag(subparsers) -> None:
         "as a JSON channel with a jsonschema schema (arrays as lists, NaN as null, integers "
         "beyond 2^53 as decimal strings, plus 'stamp' as {sec, nsec}), and each P_AC topic "
         "also as <topic>/audio of type foxglove.RawAudio (pcm-s16, upsampled to 8800 Hz) for the Audio panel. "
-        "Receive times, stamps and seqs are kept.")
+        "Each message is logged at its stamp, as the live view does; seqs are kept.")
     p.add_argument("bag", metavar="IN.mcap", help="a finished recording (recover it first if not)")
     p.add_argument("out", metavar="OUT.mcap")
     p.add_argument("--foxglove", action="store_true", required=True,

@@ -3,7 +3,10 @@
     launch stabilize.yaml view:=foxglove       # in a launch
     slip view [--port 8765] [--graph NAME]      # attached to a graph already running
 
-Connect the viewer to ws://127.0.0.1:8765 (docs/tools.md, "Live view"). The protocol has no
+Connect the viewer to ws://127.0.0.1:8765 (docs/tools.md, "Live view"), with either name of the
+subprotocol (foxglove.sdk.v1, foxglove.websocket.v1). In a launch it advertises the launch's
+topics ($SLIP_TOPICS) before any node sends, may hold the start until a viewer subscribes
+(`wait_for_client_s`), and at shutdown sends what it still holds before it closes (`finish`). The protocol has no
 authentication: the bridge binds the loopback address unless `host` says otherwise, and then
 prints a warning. It only reads the graph; the server refuses client publishing, parameters and
 services (graph/live_view.py). Needs the `[view]` extra (foxglove-sdk).
@@ -23,8 +26,10 @@ import time
 from incipient_slip.errors import EXIT_USAGE, UsageError
 from incipient_slip.graph import discovery
 from incipient_slip.graph.bag_export import AUDIO_RATE_HZ
+from incipient_slip.graph.launch.topology import topics_from_env
 from incipient_slip.graph.live_view import (
-    AUDIO_BLOCK_FRAMES, EXTRA_HINT, PAC_VIEW_HZ, LiveView, is_loopback,
+    AUDIO_BLOCK_FRAMES, DRAIN_QUIET_S, DRAIN_TIMEOUT_S, EXTRA_HINT, PAC_VIEW_HZ, LiveView,
+    is_loopback,
 )
 from incipient_slip.graph.params import Param
 from incipient_slip.graph.runtime import ANY_TOPIC, POLL_S, Node, run_node
@@ -32,6 +37,7 @@ from incipient_slip.messages import PAC_RATE_HZ, Message, MessageError
 
 __all__ = ["FoxgloveBridge", "register"]
 
+SETTLE_S = 0.25     # a viewer's subscriptions are complete when they have not changed this long
 FOLLOW_S = 0.1      # how often the topics received follow what the clients subscribe to
 
 
@@ -39,7 +45,9 @@ class FoxgloveBridge(Node):
     """Serves every topic of the graph as a Foxglove WebSocket channel (JSON + JSON Schema)."""
 
     PARAMS = {"host": "127.0.0.1", "port": 8765,
-              "backlog": Param(1024, lo=1, help="messages queued per client; the oldest go first"),
+              # a lock-step run sends ~4000 messages a second on the layout's topics: 1024 was a
+              # quarter second of lag before a client that keeps up on average lost messages
+              "backlog": Param(16384, lo=1, help="messages queued per client; the oldest go first"),
               "audio_rate_hz": Param(AUDIO_RATE_HZ, lo=PAC_RATE_HZ,
                                      help=f"P_AC audio rate: a multiple of {PAC_RATE_HZ} Hz"),
               "audio_block_frames": Param(AUDIO_BLOCK_FRAMES, lo=1, help="P_AC frames per audio "
@@ -51,7 +59,7 @@ class FoxgloveBridge(Node):
                                          "sources) until a viewer subscribes, at most this long"),
               "priority": Param("low", choices=("idle", "low", "normal"),
                                 help="CPU priority: idle = only CPU time no node wants (SCHED_IDLE), "
-                                     "low = nice 10, normal = as the graph's nodes")}
+                                     "low = nice +10 (relative to the graph's), normal = as the graph's nodes")}
     INPUTS = {ANY_TOPIC: Message}       # every topic of the graph, like the recorder
     OUTPUTS: dict = {}
 
@@ -68,11 +76,16 @@ class FoxgloveBridge(Node):
                              audio_rate_hz=self.param("audio_rate_hz"),
                              pac_view_hz=self.param("pac_view_hz"),
                              audio_block_frames=self.param("audio_block_frames"))
-        self.on_shutdown(self.view.close)
-        self.log(f"serving ws://{host}:{self.view.port} (read-only; clients must speak the "
-                 f"foxglove.sdk.v1 subprotocol: Foxglove, Lichtblick since its PR #819)")
-        self.create_raw_subscription(self.on_message)
+        self.on_shutdown(self.finish)
         self.untyped: set[str] = set()     # announced topics of no known type (replay's "raw")
+        self.heard = 0                     # messages received from the graph
+        # a launch's topics, from its topology: advertised before any node has started
+        for topic, type_name in topics_from_env(os.environ).items():
+            if not self.view.offer(topic, type_name):
+                self.untyped.add(topic)
+        self.log(f"serving ws://{host}:{self.view.port} (read-only; subprotocol foxglove.websocket.v1 "
+                 f"or foxglove.sdk.v1: Foxglove, Lichtblick, the @foxglove/ws-protocol client)")
+        self.create_raw_subscription(self.on_message)
         self.create_timer(1.0, self.offer_announced)
         self.create_timer(FOLLOW_S, self.follow_clients)
         self.offer_announced()
@@ -81,10 +94,27 @@ class FoxgloveBridge(Node):
             self.wait_for_client(self.param("wait_for_client_s"))
 
     def on_message(self, topic: str, body: bytes, recv_ns: int) -> None:
+        self.heard += 1
         try:
             self.view.forward(topic, body)
         except MessageError as exc:
             self.warn(throttle_s=1.0, key=("bridge-drop", topic), text=f"dropped malformed message: {exc}")
+
+    def finish(self) -> None:
+        """At shutdown: what the graph sent before it ended still reaches the clients. Reads
+        what is queued from the graph (until nothing new for DRAIN_QUIET_S), waits until the
+        server's queues have gone out to the clients (`LiveView.drain`), then stops the server;
+        each step at most DRAIN_TIMEOUT_S (a stalled client is not waited for)."""
+        deadline = last = time.monotonic()
+        deadline += DRAIN_TIMEOUT_S
+        while (now := time.monotonic()) - last < DRAIN_QUIET_S and now < deadline:
+            heard = self.heard
+            self.spin_once(DRAIN_QUIET_S / 4)
+            if self.heard != heard:
+                last = time.monotonic()
+        if not self.view.drain():
+            self.warn(f"a client still had messages queued after {DRAIN_TIMEOUT_S:g} s; closing")
+        self.view.close()
 
     def offer_announced(self) -> None:
         """Advertises the topics the graph's nodes announce, before their first message."""
@@ -109,6 +139,13 @@ class FoxgloveBridge(Node):
             if time.monotonic() > deadline:
                 self.warn(f"no viewer subscribed within {timeout_s:g} s; going on")
                 return
+        # a client subscribes to its topics one op after another (the official client, one per
+        # channel): the start waits until its set has not changed for SETTLE_S (at most 2 s)
+        watched, since, settle_end = self.view.watched(), time.monotonic(), time.monotonic() + 2.0
+        while time.monotonic() - since < SETTLE_S and time.monotonic() < settle_end and not self.stopping:
+            time.sleep(SETTLE_S / 5)
+            if (now := self.view.watched()) != watched:
+                watched, since = now, time.monotonic()
         self.follow_clients()       # before this node's hello: the sources' first messages come
 
 
@@ -127,12 +164,15 @@ def lower_priority(priority: str) -> None:
     if priority == "normal":
         return
     idle = priority == "idle" and hasattr(os, "SCHED_IDLE")
+    # "low" is 10 below the nice this process started with (the graph's, which may be niced
+    # itself), not an absolute nice 10: under `nice -n 10` the graph's nodes are at 10 already
+    low = min(19, os.getpriority(os.PRIO_PROCESS, 0) + 10)
     for tid in _thread_ids():
         try:
             if idle:
                 os.sched_setscheduler(tid, os.SCHED_IDLE, os.sched_param(0))
-            else:                           # low, or idle without SCHED_IDLE (not Linux): nice 10
-                os.setpriority(os.PRIO_PROCESS, tid, max(os.getpriority(os.PRIO_PROCESS, tid), 10))
+            else:                           # low, or idle without SCHED_IDLE (not Linux): nice +10
+                os.setpriority(os.PRIO_PROCESS, tid, max(os.getpriority(os.PRIO_PROCESS, tid), low))
         except OSError:                     # a thread that ended meanwhile
             pass
     if os.getsid(0) == os.getpid():

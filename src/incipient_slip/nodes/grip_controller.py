@@ -54,7 +54,8 @@ class GripController(Node):
                                            lockstep=p("lockstep"))
         self.command_pub = self.create_publisher(GripCommand)
         self.create_subscription(SlipEstimate, self.on_estimate)
-        self.create_subscription(ActuatorState, lambda msg: self.send(*self.core.tick(msg.step_index, time.monotonic())))
+        self.create_subscription(ActuatorState, self.on_tick)
+        self.input_ns = 0       # the latest stamp of an input: a command carries it (one time base)
         self.create_timer(0.01, self.clock)
         self.readers_ready = p("wait_subscribers") == 0
 
@@ -73,7 +74,12 @@ class GripController(Node):
                       f"its tick: hold ({self.core.holds} holds)", throttle_s=1.0, key="late")
         self.send(answers)
 
+    def on_tick(self, msg: ActuatorState) -> None:
+        self.input_ns = max(self.input_ns, msg.stamp_ns)
+        self.send(*self.core.tick(msg.step_index, time.monotonic()))
+
     def on_estimate(self, msg: SlipEstimate) -> None:
+        self.input_ns = max(self.input_ns, msg.stamp_ns)
         answers, warning = self.core.estimate(msg.period, msg.stick_ratio, msg.valid, msg.method, msg.reason)
         if warning.endswith("estimate marked invalid (filling)"):
             # expected at the start of every run: the estimator's window is not full yet
@@ -93,7 +99,7 @@ class GripController(Node):
                 self.warn(f"too few readers of {self.command_pub.topic}; sending anyway")
         for a in answers:
             self.command_pub.publish(GripCommand(normal_force_kpa=a.normal_force_kpa, hold=a.hold,
-                                                 period=a.period, reason=a.reason))
+                                                 period=a.period, reason=a.reason, stamp_ns=self.input_ns))
 
 
 def main(argv=None):

@@ -86,6 +86,7 @@ class Supervisor(Node):
         self.pzt_on = self.summary = None
         self.steps_sent = 0
         self.events = self.create_publisher(RunEvent)
+        self.input_ns = 0       # the latest stamp of an input: events carry it (one time base)
         self.origin = control.PeriodOrigin(p("period_origin"), held_max=2000)
         self.create_subscription(ActuatorState, self.on_tick)
         self.create_subscription(ObjectPose, lambda m: m.tracking_valid and self.on_rig(self.judge.pose, m.stamp_ns, m.travel_mm))
@@ -110,6 +111,7 @@ class Supervisor(Node):
 
     def on_rig(self, record, stamp_ns: int, value: float) -> None:
         """A pose or F_N of the rig, on the period clock (held until the first tick, if need be)."""
+        self.input_ns = max(self.input_ns, stamp_ns)
         if self.last_command is None:
             self.last_command = time.monotonic()
         if not self.origin.hold((record, stamp_ns, value)):
@@ -118,6 +120,7 @@ class Supervisor(Node):
                 record(stamp, value, time.monotonic())
 
     def on_tick(self, msg: ActuatorState) -> None:
+        self.input_ns = max(self.input_ns, msg.stamp_ns)
         if self.last_command is None:
             self.last_command = time.monotonic()
         if self.origin.origin_ns is None:
@@ -126,13 +129,14 @@ class Supervisor(Node):
         self.judge.rig_tick(msg.step_index)
 
     def on_command(self, msg: GripCommand) -> None:
+        self.input_ns = max(self.input_ns, msg.stamp_ns)
         first = self.judge.next_period is None
         dropped = self.judge.command(msg.period, msg.hold, msg.normal_force_kpa, time.monotonic())
         if dropped:
             self.warn(f"{dropped} ({self.judge.dropped} dropped)", throttle_s=1.0)
             return
         if first:
-            self.events.publish(RunEvent(kind="start", detail=f"method {self.param('method')}"))
+            self.events.publish(RunEvent(stamp_ns=self.input_ns, kind="start", detail=f"method {self.param('method')}"))
         self.last_command = time.monotonic()
         self.watchdog()
 
@@ -140,7 +144,7 @@ class Supervisor(Node):
         j, now = self.judge, time.monotonic()
         verdict = j.close(now)
         for i in range(self.steps_sent, j.steps):           # one RunEvent per judged period
-            self.events.publish(RunEvent(kind="step", step=i + 1, object_travel_mm=j.traces["travel_mm"][i],
+            self.events.publish(RunEvent(stamp_ns=self.input_ns, kind="step", step=i + 1, object_travel_mm=j.traces["travel_mm"][i],
                                          normal_force_kpa=j.traces["force_kpa"][i]))
         self.steps_sent = j.steps
         if j.force_carried > self.force_carried:
@@ -186,9 +190,9 @@ class Supervisor(Node):
         if not self.param("quiet"):
             print(control.format_summary(self.summary, path), flush=True)
         if j.verdict.kind in RUN_EVENT_KINDS:
-            self.events.publish(RunEvent(kind=j.verdict.kind, step=j.steps, detail=j.verdict.detail,
+            self.events.publish(RunEvent(stamp_ns=self.input_ns, kind=j.verdict.kind, step=j.steps, detail=j.verdict.detail,
                                          object_travel_mm=j.travel_mm, normal_force_kpa=j.force_kpa))
-        self.events.publish(RunEvent(kind="end", step=j.steps, detail=j.verdict.kind))
+        self.events.publish(RunEvent(stamp_ns=self.input_ns, kind="end", step=j.steps, detail=j.verdict.kind))
         if j.verdict.kind in control.EXIT_CODES:   # "interrupted": a signal already ends the node
             self.shutdown(j.verdict.detail, exit_code=control.EXIT_CODES[j.verdict.kind])
 

@@ -20,9 +20,9 @@ from typing import Any
 from incipient_slip import paths
 from incipient_slip.graph.launch.parse import Action, LaunchError, Marked, declared_args, parse_document
 from incipient_slip.graph.launch.substitute import Scope
-from incipient_slip.graph.launch.topology import NodeTopics, Topology, node_class
+from incipient_slip.graph.launch.topology import TOPICS_ENV, NodeTopics, Topology, node_class
 from incipient_slip.graph.params import ParamError, check_params, declared_params, format_value
-from incipient_slip.graph.runtime import READERS_ENV, WRITERS_ENV
+from incipient_slip.graph.runtime import ANY_TOPIC, READERS_ENV, WRITERS_ENV
 
 __all__ = ["NodeSpec", "LaunchDescription", "find_launch_file", "load", "load_text", "NODE_PACKAGES"]
 
@@ -70,7 +70,7 @@ class LaunchDescription:
         """A YAML-friendly dict (what `launch FILE --print` shows)."""
         nodes = []
         for n in self.nodes:
-            env = {k: v for k, v in n.env.items() if k not in (READERS_ENV, WRITERS_ENV)}
+            env = {k: v for k, v in n.env.items() if k not in (READERS_ENV, WRITERS_ENV, TOPICS_ENV)}
             readers = json.loads(n.env.get(READERS_ENV, "{}"))
             nodes.append({
                 "name": n.name, "exec": n.exec, "command": " ".join(n.argv()), "params": n.params,
@@ -151,6 +151,8 @@ def _check_and_connect(desc: LaunchDescription) -> None:
         writers = desc.topology.writers_of_node_inputs(spec.name)
         if writers:
             spec.env[WRITERS_ENV] = json.dumps(writers, separators=(",", ":"))
+        if ANY_TOPIC in (desc.topology.node(spec.name).inputs or {}):
+            spec.env[TOPICS_ENV] = json.dumps(desc.topology.typed_topics(), separators=(",", ":"))
 
 
 def _resolve_actions(actions: list[Action], scope: Scope, desc: LaunchDescription) -> None:

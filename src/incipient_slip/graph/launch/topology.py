@@ -12,6 +12,7 @@ is known only when it runs), so replay waits for every reader of the launch.
 from __future__ import annotations
 
 import importlib
+import json
 import importlib.util
 import sys
 from dataclasses import dataclass, field
@@ -21,8 +22,11 @@ from incipient_slip.graph.runtime import ANY_TOPIC, Node
 from incipient_slip.messages import Heartbeat
 
 HEARTBEAT_TOPIC = Heartbeat.TOPIC
+# {topic: type name} of every typed topic of the launch, told to each node that reads every
+# topic (the viewer bridge advertises them all before the sources start)
+TOPICS_ENV = "SLIP_TOPICS"
 
-__all__ = ["NodeTopics", "Topology", "node_class"]
+__all__ = ["NodeTopics", "Topology", "node_class", "TOPICS_ENV", "topics_from_env"]
 
 _loaded: dict[str, object] = {}
 
@@ -104,6 +108,9 @@ class Topology:
     def readers_of(self, topic: str) -> list[str]:
         return self.readers.get(topic, []) + self.readers.get(ANY_TOPIC, [])
 
+    def node(self, name: str) -> NodeTopics:
+        return next(n for n in self.nodes if n.name == name)
+
     def readers_of_node(self, name: str) -> dict[str, list[str]]:
         """{output topic of node `name`: the other nodes reading it} (what it waits for)."""
         node = next(n for n in self.nodes if n.name == name)
@@ -130,6 +137,12 @@ class Topology:
         if ANY_TOPIC in inputs:
             return {}
         return {t: self.writers_of(t) for t in inputs if t != HEARTBEAT_TOPIC and self.writers_of(t)}
+
+    def typed_topics(self) -> dict[str, str]:
+        """{topic: type name} of every topic of the launch whose type a node declares, and
+        `/heartbeat` (every node's)."""
+        return {**{t: self.types[t] for t in self.topics() if t in self.types},
+                HEARTBEAT_TOPIC: Heartbeat.__name__}
 
     def warnings(self) -> list[str]:
         """A line for each topic read by a node but written by none, or declared with two types,
@@ -162,3 +175,12 @@ class Topology:
         """One row per topic: type, writers, readers (what `--print` shows)."""
         return [{"topic": t, "type": self.types.get(t, "any"), "writers": self.writers_of(t),
                  "readers": self.readers_of(t)} for t in self.topics()]
+
+
+def topics_from_env(environ) -> dict[str, str]:
+    """`$SLIP_TOPICS` ({topic: type name}); {} when unset or not such a JSON object."""
+    try:
+        table = json.loads(environ.get(TOPICS_ENV, "{}"))
+        return {str(t): str(n) for t, n in table.items()}
+    except (ValueError, AttributeError):
+        return {}
