@@ -265,3 +265,15 @@ def test_ctrl_c_keeps_the_running_series_pending_and_a_rerun_collects_only_it(tm
         assert not list(where.rglob("*.partial.mcap"))
     finally:
         shutil.rmtree(graph_dir, ignore_errors=True)
+
+
+def test_a_late_period_is_not_a_clock_fault(recording):
+    """A real stage's move can end a period late (0.9 s, seen on the emulated rig under load): the
+    streams stay whole, so the series imports with that period longer; a tick going back does not."""
+    shift = lambda rec, i: rec.stamp_ns + (400_000_000 if rec.topic == ActuatorState.TOPIC and i == 6 else 0)
+    # (F_N from P_DC: rig_sim's one RobotState per period sits at the unshifted period start)
+    data, _ = read_series(copy_recording(recording, recording.parent / "late.mcap", stamp=shift), normal_force="pdc")
+    assert np.diff(data["period_end_s"])[5] == pytest.approx(0.9)
+    back = lambda rec, i: rec.stamp_ns - (900_000_000 if rec.topic == ActuatorState.TOPIC and i >= 6 else 0)
+    with pytest.raises(RecordingError, match="clock went back on /actuator/state"):
+        read_series(copy_recording(recording, recording.parent / "back.mcap", stamp=back))
