@@ -50,7 +50,7 @@ def test_collect_import_train_evaluate_and_hold_on_the_emulated_rig(tmp_path):
         trained = run("incipient_slip.cli", "train", "--method", "injection", "--data", str(data), "--label",
                       "measured-ratio", "--quick", "--out", str(model), env=env, timeout=300)
         assert trained.returncode == 0, trained.stderr
-        evaluated = run("incipient_slip.cli", "evaluate", "--data", str(data), str(model), env=env, timeout=300)
+        evaluated = run("incipient_slip.cli", "evaluate", "--data", str(data), "--model", str(model), env=env, timeout=300)
         assert evaluated.returncode == 0 and "RMSE" in evaluated.stdout, evaluated.stdout + evaluated.stderr
 
         summary = tmp_path / "run.json"
