@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -14,6 +13,7 @@ import pytest
 from incipient_slip.devices import biotac as bt
 from incipient_slip.graph.runtime import Node
 from incipient_slip.messages import BiotacPac, BiotacSlow, BiotacStatus, BiotacTare
+from waiting import spin_until
 
 FAULTS = "parity_flip@30,parity_flip@31,error_word@40,error_word@41,crc@50,drop@60,repeat@70,counter_jump@80"
 FRAMES = 300
@@ -29,12 +29,7 @@ class Probe(Node):
         self.tare_pub = self.create_publisher(BiotacTare)
 
     def spin_until(self, predicate, procs, timeout_s=40.0):
-        deadline = time.monotonic() + timeout_s
-        while not predicate():
-            for p in procs:
-                assert p.poll() is None, f"{p.args} exited {p.returncode}: {p.stderr.read().decode()}"
-            assert time.monotonic() < deadline, "timed out"
-            self.spin_once(0.02)
+        spin_until(lambda: self.spin_once(0.02), predicate, timeout_s, procs, "the biotac reader")
 
 
 def start_emulator(graph, tmp_path, *extra):

@@ -16,7 +16,7 @@ from incipient_slip.nodes.rig_sim import RigSim, pac_frame_stamps_ns, slow_frame
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.sim.dataset import simulate_series
 from incipient_slip.sim.rig import Rig, load_scene
-from waiting import spin_until
+from waiting import handshake, spin_until
 
 RECORDED = (BiotacPac, BiotacSlow, ObjectPose, RobotState, ActuatorState, PztState, SimTruth)
 
@@ -53,10 +53,7 @@ def start_rig(graph, **params):
 
 def connect(ctl, proc, pub):
     """Waits until rig_sim subscribed to `pub` (it waits for us on its own topics)."""
-    deadline = time.monotonic() + 20
-    while not pub.wait_for_subscribers(1, 0.1):
-        assert proc.poll() is None, proc.stderr.read().decode()
-        assert time.monotonic() < deadline, "rig_sim never subscribed"
+    handshake(pub, 20, [proc], "rig_sim subscribed")
 
 
 def stop(proc):

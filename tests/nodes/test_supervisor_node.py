@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import json
 import signal
-import time
 
 from incipient_slip.messages import PERIOD_NS
 from incipient_slip.graph.runtime import Node
 from incipient_slip.experiments.run_plot import load_summary, plot_run
 from incipient_slip.messages import GripCommand, Heartbeat, ObjectPose, RobotState, RunEvent, SimTruth, SlipEstimate
+from waiting import spin_until
 
 
 class FakeLoop(Node):
@@ -25,11 +25,7 @@ class FakeLoop(Node):
         self.create_subscription(Heartbeat, lambda m: self.heard.add(m.node))
 
     def spin_until(self, predicate, proc, timeout_s=20.0):
-        deadline = time.monotonic() + timeout_s
-        while not predicate():
-            assert proc.poll() is None, proc.stderr.read().decode()
-            assert time.monotonic() < deadline, "timed out"
-            self.spin_once(0.02)
+        spin_until(lambda: self.spin_once(0.02), predicate, timeout_s, [proc], "the supervisor")
 
     def period(self, k, force_kpa=3.0, y_mm=0.2):
         start = k * PERIOD_NS
