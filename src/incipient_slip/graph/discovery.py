@@ -366,3 +366,10 @@ class Discovery:
         added, removed = sorted(current - self.endpoints), sorted(self.endpoints - current)
         self.endpoints = current
         return added, removed
+
+    def info_of(self, endpoint: str) -> NodeInfo | None:
+        """The announcement, as last scanned, of the node bound at `endpoint`."""
+        for info in self.infos:
+            if info.endpoint == endpoint:
+                return info
+        return None

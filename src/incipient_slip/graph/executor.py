@@ -102,18 +102,21 @@ class Executor:
         timers = self._timers
         due = min(self._next_scan, timers[0].due) if timers else self._next_scan
         ms = max(0, int(min(timeout_s, due - now) * 1000.0 + 0.999))
-        if ms != self._rcvtimeo:
-            self._sub.setsockopt(zmq.RCVTIMEO, ms)
-            self._rcvtimeo = ms
-        recv, read = self._sub.recv, self._read
-        try:
-            read(recv(copy=False))
-            for _ in range(DRAIN_MAX):
-                if self._stop or time.monotonic() >= due:
-                    break
-                read(recv(zmq.NOBLOCK, copy=False))
-        except zmq.Again:
-            pass
+        if self._writers:       # a SUB per publisher (peers.py): poll them
+            self._read_peers(self._poll_peers(ms), DRAIN_MAX, due)
+        else:
+            if ms != self._rcvtimeo:
+                self._sub.setsockopt(zmq.RCVTIMEO, ms)
+                self._rcvtimeo = ms
+            recv, read = self._sub.recv, self._read
+            try:
+                read(recv(copy=False))
+                for _ in range(DRAIN_MAX):
+                    if self._stop or time.monotonic() >= due:
+                        break
+                    read(recv(zmq.NOBLOCK, copy=False))
+            except zmq.Again:
+                pass
         if timers and timers[0].due <= time.monotonic():
             self._read_queued()
             self._run_timers()
@@ -123,6 +126,9 @@ class Executor:
         a timer that judges silence ("no heartbeat for 3 s", "no estimate 0.4 s after the tick")
         must see what arrived while this process was not run, or a loaded host reads as a
         silent graph."""
+        if self._writers:
+            self._read_peers(list(self._peer_of), TIMER_DRAIN_MAX)
+            return
         recv, read = self._sub.recv, self._read
         try:
             for _ in range(TIMER_DRAIN_MAX):
@@ -132,13 +138,35 @@ class Executor:
         except zmq.Again:
             pass
 
-    def _read(self, first: zmq.Frame) -> None:
-        """Reads the rest of the message whose first frame is `first` and handles it; a message
-        of other than two frames, or whose topic is not NUL-terminated UTF-8, is a counted drop.
+    def _poll_peers(self, ms: int) -> list:
+        if not self._peer_of:       # zmq_poll of nothing returns at once
+            time.sleep(ms / 1000.0)
+            return []
+        return [sub for sub, _ in self._poller.poll(ms)]
+
+    def _read_peers(self, subs: list, budget: int, due: float | None = None) -> None:
+        """Reads up to `budget` queued messages from each of the per-publisher `subs`, each
+        checked against its connection (`Peers._takes`)."""
+        for sub in subs:
+            try:
+                for _ in range(budget):
+                    peer = self._peer_of.get(sub)    # None: closed by what a message caused
+                    if peer is None or self._stop or (due is not None and time.monotonic() >= due):
+                        break
+                    self._read(sub.recv(zmq.NOBLOCK, copy=False), sub, peer)
+            except zmq.Again:
+                pass
+
+    def _read(self, first: zmq.Frame, sub: zmq.Socket | None = None, peer=None) -> None:
+        """Reads the rest of the message whose first frame is `first` (from `sub`, default the
+        node's one SUB) and handles it; a message of other than two frames, or whose topic is not
+        NUL-terminated UTF-8, is a counted drop, and one that came on `peer`'s connection is
+        handled only if it is `peer`'s to send (`Peers._takes`).
         Frames (copy=False) because Frame.more is a C read, and get(RCVMORE) a Python enum call
         that cost more than the recv itself."""
+        recv = (sub or self._sub).recv
         if first.more:
-            second = self._sub.recv(copy=False)
+            second = recv(copy=False)
             raw = first.bytes
             if not second.more and raw[-1:] == b"\0":
                 try:
@@ -146,11 +174,12 @@ class Executor:
                 except UnicodeDecodeError:
                     pass
                 else:
-                    self._handle(topic, second.bytes)
+                    if peer is None or self._takes(peer, topic):
+                        self._handle(topic, second.bytes)
                     return
             frames = [raw, second.bytes]
             while second.more:
-                second = self._sub.recv(copy=False)
+                second = recv(copy=False)
                 frames.append(second.bytes)
         else:
             frames = [first.bytes]

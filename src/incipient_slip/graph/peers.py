@@ -17,7 +17,7 @@ from incipient_slip.graph import discovery, security
 from incipient_slip.graph.executor import POLL_S, _open_nodes
 from incipient_slip.graph.params import ParamError
 
-__all__ = ["Peers", "READERS_ENV", "WRITERS_ENV", "HELLO", "READY_TIMEOUT_S", "DISCONNECT_GRACE_S"]
+__all__ = ["Peers", "Peer", "READERS_ENV", "WRITERS_ENV", "HELLO", "READY_TIMEOUT_S", "DISCONNECT_GRACE_S"]
 
 DISCONNECT_GRACE_S = 2.0  # how long a withdrawn publisher stays connected so its last frames are read
 LINGER_MS = 500           # longest close() waits to flush queued messages
@@ -70,12 +70,15 @@ class Peers:
         else:
             endpoint = discovery.ipc_endpoint(self._dir, self.name, os.getpid())
             self._xpub.bind(endpoint)
-        self._sub = self._ctx.socket(zmq.SUB)
-        self._sub.setsockopt(zmq.RCVHWM, HWM)
-        self._sub.setsockopt(zmq.LINGER, 0)
-        if self._keys:
-            security.secure_client(self._sub, self._keys)
+        self._sub = self._new_sub()
         self._rcvtimeo = -1
+        # A node with writers (a launch's) gives each publisher it connects to a SUB of its own,
+        # so that every message is checked against the connection it came on (`_writer_refusal`)
+        self._peer_subs: dict[str, zmq.Socket] = {}     # endpoint -> its own SUB
+        self._peer_of: dict[zmq.Socket, Peer] = {}
+        self._poller = zmq.Poller()
+        self._subscribed: dict[bytes, int] = {}     # prefix -> times subscribed, in order made
+        self.refused_messages = 0
         self._info = discovery.NodeInfo(self.name, os.getpid(), endpoint, started_ns=time.time_ns(),
                                         pidns=discovery.namespace("pid"), netns=discovery.namespace("net"),
                                         params=dict(self.params))   # for `slip param`
@@ -85,6 +88,55 @@ class Peers:
         self._refused_endpoints: set[str] = set()
         self._next_scan = 0.0
         _open_nodes.add(self)
+
+    def _new_sub(self) -> zmq.Socket:
+        sub = self._ctx.socket(zmq.SUB)
+        sub.setsockopt(zmq.RCVHWM, HWM)
+        sub.setsockopt(zmq.LINGER, 0)
+        if self._keys:
+            security.secure_client(sub, self._keys)
+        return sub
+
+    def _subscribe(self, prefix: bytes, on: bool = True) -> None:
+        """(Un)subscribes `prefix` on every SUB of this node, and remembers it for those to come."""
+        option = zmq.SUBSCRIBE if on else zmq.UNSUBSCRIBE
+        for sub in (self._sub, *self._peer_subs.values()):
+            sub.setsockopt(option, prefix)
+        n = self._subscribed.get(prefix, 0) + (1 if on else -1)
+        if n > 0:
+            self._subscribed[prefix] = n
+        else:
+            self._subscribed.pop(prefix, None)
+
+    def _connect(self, endpoint: str) -> None:
+        if not self._writers:
+            self._sub.connect(endpoint)
+            return
+        sub = self._new_sub()
+        for prefix, n in self._subscribed.items():
+            for _ in range(n):
+                sub.setsockopt(zmq.SUBSCRIBE, prefix)
+        sub.connect(endpoint)
+        self._peer_subs[endpoint] = sub
+        self._peer_of[sub] = Peer(self._discovery.info_of(endpoint))
+        self._poller.register(sub, zmq.POLLIN)
+
+    def _disconnect(self, endpoint: str) -> None:
+        sub = self._peer_subs.pop(endpoint, None)
+        if sub is None:
+            try:
+                self._sub.disconnect(endpoint)
+            except zmq.ZMQError:
+                pass
+            return
+        self._poller.unregister(sub)
+        del self._peer_of[sub]
+        sub.close(linger=0)
+
+    def _close_subs(self) -> None:
+        self._sub.close(linger=0)
+        for endpoint in list(self._peer_subs):
+            self._disconnect(endpoint)
 
     @property
     def readers(self) -> dict[str, list[str]]:
@@ -140,8 +192,8 @@ class Peers:
         so that a hello always follows every subscription made before it."""
         hello = HELLO + self.name.encode()
         if self._said_hello:
-            self._sub.setsockopt(zmq.UNSUBSCRIBE, hello)
-        self._sub.setsockopt(zmq.SUBSCRIBE, hello)
+            self._subscribe(hello, False)
+        self._subscribe(hello)
         self._said_hello = True
 
     def _after_subscribe(self) -> None:
@@ -157,7 +209,7 @@ class Peers:
         for endpoint in added:
             self._retiring.pop(endpoint, None)
             if endpoint not in self._connected:
-                self._sub.connect(endpoint)
+                self._connect(endpoint)
                 self._connected.add(endpoint)
         # A publisher that withdrew may still have frames in our pipe: ZeroMQ discards them on
         # disconnect, so disconnect only after a grace period in which the loop reads them.
@@ -169,11 +221,10 @@ class Peers:
         for endpoint, due in list(self._retiring.items()):
             if due <= now:
                 del self._retiring[endpoint]
-                try:
-                    self._sub.disconnect(endpoint)
-                except zmq.ZMQError:
-                    pass
+                self._disconnect(endpoint)
                 self._connected.discard(endpoint)
+        for peer in self._peer_of.values():       # the announcements as they are now
+            peer.info = self._discovery.info_of(peer.info.endpoint) or peer.info
 
     @property
     def refused_clients(self) -> int:
@@ -188,19 +239,49 @@ class Peers:
         have none (an operator's command) or of every topic for a node that reads them all."""
         writers = self._writers
         for topic in info.publishes:
-            if topic in writers and info.name not in writers[topic]:
-                key = (info.name, info.pid)
-                if key not in self.refused_writers:
-                    self.refused_writers[key] = (f"publisher {info.name} (pid {info.pid}) refused: it "
-                                         f"announces {topic}, whose writer in this launch is "
-                                         f"{' or '.join(writers[topic])}")
-                    self.warn(f"{self.refused_writers[key]} ({len(self.refused_writers)} refused)")
+            why = self._writer_refusal(info, topic)
+            if why:
+                self._refuse(info, f"publisher {info.name} (pid {info.pid}) refused: it announces {why}")
                 self._refused_endpoints.add(info.endpoint)
                 return False
         if any(info.name in names for names in writers.values()):
             return True
         reads = self._info.subscribes
         return ANY_TOPIC in reads or any(t in reads for t in info.publishes)
+
+    def _writer_refusal(self, info: discovery.NodeInfo, topic: str) -> str:
+        """Why the node announced by `info` may not write `topic` to this one ("" if it may): a
+        topic must be one it announces and, when the launch names the topic's writers, it must be
+        one of them."""
+        if topic not in info.publishes:
+            return f"{topic}, which it does not announce"
+        writers = self._writers.get(topic)
+        if writers and info.name not in writers:
+            return f"{topic}, whose writer in this launch is {' or '.join(writers)}"
+        return ""
+
+    def _takes(self, peer: "Peer", topic: str) -> bool:
+        """Whether a message on `topic` that came on `peer`'s connection is delivered; a refused
+        one is counted (`refused_messages`) and logged once per peer (`refused_writers`)."""
+        if topic in peer.topics:
+            return True
+        why = self._writer_refusal(peer.info, topic)
+        if why:     # a publisher announces a topic before it sends on it: look again at once
+            self._discover()
+            why = self._writer_refusal(peer.info, topic)
+        if not why:
+            peer.topics.add(topic)
+            return True
+        self.refused_messages += 1
+        self._refuse(peer.info, f"messages from {peer.info.name} (pid {peer.info.pid}) refused: "
+                                f"it sent {why}")
+        return False
+
+    def _refuse(self, info: discovery.NodeInfo, why: str) -> None:
+        key = (info.name, info.pid)
+        if key not in self.refused_writers:
+            self.refused_writers[key] = why
+            self.warn(f"{why} ({len(self.refused_writers)} refused)")
 
     def _drain_xpub(self) -> None:
         counts = self._sub_counts
@@ -237,6 +318,16 @@ class Peers:
             if left <= 0 or self._stop:
                 return False
             self._xpub.poll(min(left, POLL_S) * 1000.0, zmq.POLLIN)
+
+
+class Peer:
+    """A publisher this node connected to on a SUB of its own: its announcement as last scanned,
+    and the topics already found to be its to send here."""
+
+    __slots__ = ("info", "topics")
+
+    def __init__(self, info: discovery.NodeInfo):
+        self.info, self.topics = info, set()
 
 
 def _table_from_env(env: str, node: str) -> dict[str, list[str]]:

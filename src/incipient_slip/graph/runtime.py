@@ -186,7 +186,7 @@ class Node(Peers, Executor):
         self._subs.setdefault(topic, []).append(sub)
         if msg_type.LATCHED:
             self._latched_topics.add(topic)
-        self._sub.setsockopt(zmq.SUBSCRIBE, M.topic_frame(topic))
+        self._subscribe(M.topic_frame(topic))
         self._info.subscribes[topic] = msg_type.__name__
         self._after_subscribe()
         return sub
@@ -198,7 +198,7 @@ class Node(Peers, Executor):
         topic = self.resolve_topic(topic) if topic else None
         sub = RawSubscription(self, topic, callback)
         self._raw_subs.append(sub)
-        self._sub.setsockopt(zmq.SUBSCRIBE, M.topic_frame(topic) if topic else b"")
+        self._subscribe(M.topic_frame(topic) if topic else b"")
         self._info.subscribes[topic or ANY_TOPIC] = "raw"
         self._after_subscribe()
         return sub
@@ -216,11 +216,11 @@ class Node(Peers, Executor):
             self._info.subscribes[ANY_TOPIC] = ON_DEMAND
             self._announce()
         for frame in sorted(new - (old or set())):
-            self._sub.setsockopt(zmq.SUBSCRIBE, frame)
+            self._subscribe(frame)
         if old is None:
-            self._sub.setsockopt(zmq.UNSUBSCRIBE, b"")      # after the new ones: no gap
+            self._subscribe(b"", False)      # after the new ones: no gap
         for frame in sorted((old or set()) - new):
-            self._sub.setsockopt(zmq.UNSUBSCRIBE, frame)
+            self._subscribe(frame, False)
         self._receive_only = new
 
     def now_ns(self) -> int:
@@ -261,7 +261,7 @@ class Node(Peers, Executor):
                 self.log(f"on_shutdown callback raised:\n{traceback.format_exc()}")
         discovery.withdraw(self._info)
         _open_nodes.discard(self)
-        self._sub.close(linger=0)
+        self._close_subs()
         self._xpub.close(linger=LINGER_MS)
 
     def __enter__(self):
