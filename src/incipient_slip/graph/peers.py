@@ -57,6 +57,7 @@ class Peers:
         self._xpub.setsockopt(zmq.XPUB_VERBOSER, 1)
         self._xpub.setsockopt(zmq.SNDHWM, HWM)
         self._xpub.setsockopt(zmq.LINGER, LINGER_MS)
+        instance = discovery.new_instance()
         transport = security.transport()
         # tcp: every socket CURVE-authenticated and encrypted with the graph's keys (security.py)
         self._keys = security.graph_keys(self._dir) if transport == "tcp" else None
@@ -68,7 +69,7 @@ class Peers:
             port = self._xpub.bind_to_random_port("tcp://127.0.0.1")
             endpoint = f"tcp://127.0.0.1:{port}"
         else:
-            endpoint = discovery.ipc_endpoint(self._dir, self.name, os.getpid())
+            endpoint = discovery.ipc_endpoint(self._dir, self.name, os.getpid(), instance)
             self._xpub.bind(endpoint)
         self._sub = self._new_sub()
         self._rcvtimeo = -1
@@ -81,7 +82,8 @@ class Peers:
         self.refused_messages = 0
         self._info = discovery.NodeInfo(self.name, os.getpid(), endpoint, started_ns=time.time_ns(),
                                         pidns=discovery.namespace("pid"), netns=discovery.namespace("net"),
-                                        params=dict(self.params))   # for `slip param`
+                                        params=dict(self.params),   # for `slip param`
+                                        instance=instance)
         self._discovery = discovery.Discovery(self._dir, log=lambda text: self.warn(text))
         self._connected: set[str] = set()
         self._retiring: dict[str, float] = {}   # endpoint -> monotonic time to disconnect
