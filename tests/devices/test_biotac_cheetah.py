@@ -3,6 +3,7 @@
 unplug; and the reader node on it as a process (the fake installed as the module)."""
 from __future__ import annotations
 
+import signal
 import time
 
 import numpy as np
@@ -107,7 +108,7 @@ def test_reader_node_on_the_cheetah_backend(graph, tmp_path):
     finally:
         probe.close()
     reader.terminate()
-    assert reader.wait(10) == 0
+    assert reader.wait(10) == 128 + signal.SIGTERM
     assert [m.seq for m in got] == list(range(len(got)))
     assert np.diff([m.stamp_ns for m in got]).tolist() == [10_000_000] * (len(got) - 1)
     assert "on cheetah: streaming" in reader.stderr.read().decode()

@@ -3,6 +3,7 @@ what it publishes decodes to the emulator's values exactly, every fault kind is 
 visible through `slip topic echo`, bad parameters exit 2 with one line."""
 from __future__ import annotations
 
+import signal
 import json
 import subprocess
 import sys
@@ -87,7 +88,7 @@ def test_reader_publishes_the_emulators_values_exactly_and_counts_every_fault(gr
     assert (status["pac_frames_refused"], status["slow_frames_refused"]) == (2, 2)
     assert status["tare_state"] == "done"
     reader.terminate()
-    assert reader.wait(10) == 0
+    assert reader.wait(10) == 128 + signal.SIGTERM
 
 
 def test_reader_reports_a_missing_sensor(graph, tmp_path):
@@ -100,7 +101,7 @@ def test_reader_reports_a_missing_sensor(graph, tmp_path):
     finally:
         probe.close()
     reader.terminate()
-    assert reader.wait(10) == 0
+    assert reader.wait(10) == 128 + signal.SIGTERM
     assert "does not start with 'BT'" in reader.stderr.read().decode()
     assert not probe.pac and not probe.slow
 
@@ -134,7 +135,7 @@ def test_tare_on_request_sets_the_pdc_baseline(graph, tmp_path):
     finally:
         probe.close()
     reader.terminate()
-    assert reader.wait(10) == 0
+    assert reader.wait(10) == 128 + signal.SIGTERM
     pdc = np.array([m.pdc_counts for m in probe.slow[-30:]])
     assert probe.slow[-1].pdc_tare_counts == pytest.approx(pdc.mean(), abs=5)
     assert "tare done" in reader.stderr.read().decode()
@@ -169,7 +170,7 @@ def test_a_port_that_appears_after_the_start_is_one_info_line_and_one_that_never
             break
     for proc in (reader, never):
         proc.terminate()
-        assert proc.wait(10) == 0
+        assert proc.wait(10) == 128 + signal.SIGTERM
     said.append(reader.stderr.read().decode())
     assert "".join(said).count("waiting up to") == 1 and "WARNING" not in "".join(said), said
     assert "".join(never_said).count("waiting up to") == 1 and "WARNING: cannot open" in never_said[-1], never_said

@@ -2,6 +2,7 @@
 gaps and stale streams, bad frames dropped, window alignment equal to the offline features."""
 from __future__ import annotations
 
+import signal
 import time
 
 import numpy as np
@@ -81,7 +82,7 @@ def estimator(graph, tmp_path):
     for node, proc, _ in nodes:
         node.close()
         proc.terminate()
-        assert proc.wait(10) == 0
+        assert proc.wait(10) == 128 + signal.SIGTERM
 
 
 def pac_stream(seconds, seed=0):

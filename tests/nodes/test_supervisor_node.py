@@ -53,7 +53,7 @@ def test_forged_period_is_dropped_and_an_interrupted_run_still_writes_its_summar
     node.period(1)
     node.spin_until(lambda: [e.step for e in node.events if e.kind == "step"] == [1, 2], proc)
     proc.send_signal(signal.SIGTERM)
-    assert proc.wait(10) == 0
+    assert proc.wait(10) == 128 + signal.SIGTERM     # an interrupted run is no success
     result = json.loads(summary.read_text())
     assert result["outcome"] == "interrupted" and not result["success"]
     assert result["steps"] == 2 and result["dropped_commands"] == 1
@@ -77,7 +77,7 @@ def test_a_run_that_judged_no_period_keeps_the_earlier_summary(graph, tmp_path):
     node = FakeLoop(graph.dir)
     node.spin_until(lambda: "supervisor" in node.heard, proc)
     proc.send_signal(signal.SIGTERM)
-    assert proc.wait(10) == 0
+    assert proc.wait(10) == 128 + signal.SIGTERM     # an interrupted run is no success
     assert json.loads(summary.read_text()) == {"outcome": "success", "steps": 450}
     assert "no period was judged" in proc.stderr.read().decode()
 

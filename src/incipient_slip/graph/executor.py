@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any, Callable
 import zmq
 
 from incipient_slip import messages as M
-from incipient_slip.errors import EXIT_FAILURE, EXIT_USAGE
+from incipient_slip.errors import EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_SIGNAL_BASE, EXIT_USAGE
 from incipient_slip.graph import discovery
 from incipient_slip.graph.endpoints import LOG_EVERY_S
 from incipient_slip.graph.params import ParamError, as_param, declared_params, parse_node_argv
@@ -239,7 +239,10 @@ def _withdraw_open_nodes() -> None:
 
 def run_node(node_class: type[Node], argv: list[str] | None = None, **kwargs) -> int:
     """Builds the node from the command line (`name:=value`, `/from:=/to`, `__name:=x`), spins
-    until SIGINT/SIGTERM or `shutdown()`, closes it; returns the exit code (0 on a signal)."""
+    until SIGINT/SIGTERM or `shutdown()`, closes it; returns the exit code. A signal stops the
+    node cleanly (its on_shutdown callbacks run) and it exits 128 + the signal (130, 143: an
+    interrupted node is not a success), or 0 for a node whose normal end is a signal
+    (`Node.SIGNAL_ENDS_NORMALLY`: a recorder, `slip topic echo`)."""
     argv = sys.argv[1:] if argv is None else list(argv)
     if any(a in ("-h", "--help") for a in argv):
         print(_usage(node_class))
@@ -250,13 +253,14 @@ def run_node(node_class: type[Node], argv: list[str] | None = None, **kwargs) ->
         print(f"{node_class.__name__}: {exc}", file=sys.stderr)
         return EXIT_USAGE
     node = None
+    signal_code = 0 if node_class.SIGNAL_ENDS_NORMALLY else None
 
     def on_signal(signum, frame):
         if node is None:
             raise KeyboardInterrupt
         if node.stopping:   # second signal: the user means it
             raise KeyboardInterrupt
-        node.shutdown()
+        node.shutdown(exit_code=EXIT_SIGNAL_BASE + signum if signal_code is None else signal_code)
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     before = set(_open_nodes)
@@ -273,7 +277,9 @@ def run_node(node_class: type[Node], argv: list[str] | None = None, **kwargs) ->
         print(f"{node_class.__name__}: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
-        return 0 if node is None or node.exit_code == 0 else node.exit_code
+        if node is not None and node.exit_code:
+            return node.exit_code
+        return EXIT_INTERRUPTED if signal_code is None else signal_code
     except Exception:
         traceback.print_exc()
         return EXIT_FAILURE

@@ -81,6 +81,9 @@ class Node(Peers, Executor):
     # Inputs a launch need not write (commands an operator or another launch may send, e.g.
     # rig_sim's /pzt/command): no "read but never written" warning for them.
     OPTIONAL_INPUTS: frozenset[str] = frozenset()
+    # True for a tool whose normal end is Ctrl-C (a recorder, `slip topic echo`): a signal then
+    # ends it with 0; any other node stopped by a signal exits 128 + the signal (run_node).
+    SIGNAL_ENDS_NORMALLY: bool = False
 
     def __init__(self, name: str, *, params: dict | None = None, remaps: dict | None = None,
                  node_name: str | None = None, graph_dir=None, raw_params: dict | None = None,
