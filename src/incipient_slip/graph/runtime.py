@@ -127,6 +127,13 @@ class Node(Peers, Executor):
             self._hb_pub = self._publisher(M.Heartbeat, self.resolve_topic(M.Heartbeat.TOPIC))
             self.create_timer(heartbeat_s, self._heartbeat)
 
+    @classmethod
+    def check_inputs(cls, params: dict, name: str = ""):
+        """Checks what this node's params name outside the command line (a params overlay, a
+        model file) from `params` (declared defaults merged with the given ones), raising
+        ParamError that names the parameter and the file. The launcher calls it for every node
+        before it starts any. Default: nothing to check."""
+
     # --- the API nodes use -----------------------------------------------------------------
 
     def param(self, name: str) -> Any:

@@ -109,12 +109,19 @@ class RigSim(Node):
         "exit_when_done": Param(False, help="exit 0 after the last period"),
     }
 
+    @classmethod
+    def check_inputs(cls, params: dict, name: str = "rig_sim"):
+        """The scene with the params overlay applied; ParamError naming the parameter and the file
+        (run_node reports it in one line, exit 2; a launch before any node starts)."""
+        try:
+            return load_scene(control.scene_of(params["scene"], params["method"]), params["params"] or None)
+        except (SceneError, ValueError) as exc:
+            raise ParamError(f"node {name!r}: parameter {'params' if params['params'] else 'scene'!r}: "
+                             f"{exc}") from None
+
     def __init__(self, **kwargs):
         super().__init__("rig_sim", **kwargs)
-        try:
-            scene = load_scene(control.scene_of(self.param("scene"), self.param("method")), self.param("params") or None)
-        except (SceneError, ValueError) as exc:        # run_node reports a ParamError in one line, exit 2
-            raise ParamError(f"node {self.name!r}: parameter 'scene': {exc}") from None
+        scene = self.check_inputs(self.params, self.name)
         material = self.param("material") or scene.materials[0]
         if material not in scene.materials:
             raise ParamError(f"node {self.name!r}: parameter 'material' = {material!r} is not in "

@@ -50,9 +50,10 @@ import sys
 import yaml
 
 from incipient_slip.errors import EXIT_USAGE
-from incipient_slip.graph import discovery
+from incipient_slip.graph import discovery, security
 from incipient_slip.graph.launch.parse import LaunchError, parse_document
-from incipient_slip.graph.launch.resolve import LaunchDescription, NodeSpec, find_launch_file, load, load_text
+from incipient_slip.graph.launch.resolve import (LaunchDescription, NodeSpec, check_node_inputs, find_launch_file,
+                                                 load, load_text)
 from incipient_slip.graph.launch.supervise import GRACE_S, Launcher
 
 __all__ = ["LaunchError", "NodeSpec", "LaunchDescription", "parse_document", "load", "load_text",
@@ -142,6 +143,8 @@ def main(argv: list[str] | None = None) -> int:
             print(_dot(desc) if args.dot else _printed(desc.to_plain()), end="")
             return 0
         graph_dir = discovery.graph_dir(args.graph)
+        security.transport()       # $SLIP_TRANSPORT, before any node starts (TransportError)
+        check_node_inputs(desc)    # the files params name (an overlay), likewise
     except (LaunchError, discovery.GraphNameError) as exc:
         print(f"launch: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
