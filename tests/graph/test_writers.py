@@ -93,7 +93,7 @@ def test_the_launch_tells_each_node_the_writers_of_its_inputs():
     desc = load(find_launch_file("stabilize.yaml"))
     env = {n.name: n.env.get(WRITERS_ENV) for n in desc.nodes}
     rig, sup = json.loads(env["rig_sim"]), json.loads(env["supervisor"])
-    assert rig == {"/grip/command": ["grip_controller"]}     # /pzt/command: no writer in the launch
+    assert rig == {"/grip/command": ["grip_controller"], "/run/event": ["supervisor"]}  # /pzt/command: no writer
     assert sup["/grip/command"] == ["grip_controller"] and sup["/pzt/state"] == ["rig_sim"]
     assert "/heartbeat" not in sup
 

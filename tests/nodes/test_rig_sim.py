@@ -219,7 +219,7 @@ def test_a_forged_command_moves_the_applied_force_at_most_one_rate_step_per_peri
 def test_a_scene_publishes_only_the_topics_of_its_effects(graph, scene, topics):
     with RigSim(params={"scene": scene}) as node:           # announced, not started
         assert sorted(node._info.publishes) == topics
-        assert sorted(node._info.subscribes) == ["/grip/command", "/pzt/command"]
+        assert sorted(node._info.subscribes) == ["/grip/command", "/pzt/command", "/run/event"]
 
 
 def test_lockstep_without_a_controller_is_a_fault_naming_the_period(graph, capsys):

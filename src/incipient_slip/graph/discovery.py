@@ -124,7 +124,7 @@ def ipc_endpoint(directory: Path, name: str, pid: int, instance: str = "") -> st
     """The ipc endpoint of a node's XPUB; ValueError if the path is too long for a socket."""
     path = f"{directory}/{_stem(name, pid, instance)}.sock"
     if len(path.encode()) > _MAX_IPC_PATH:
-        path = f"{directory}/{pid}" + (f".{instance}" if instance else "") + ".sock"
+        path = f"{directory}/{instance or pid}.sock"     # the instance alone is unique too
     if len(path.encode()) > _MAX_IPC_PATH:
         raise ValueError(f"ipc socket path {path!r} is longer than {_MAX_IPC_PATH} bytes; set "
                          f"{GRAPH_DIR_ENV} to a shorter directory")

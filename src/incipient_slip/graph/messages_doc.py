@@ -252,7 +252,7 @@ endpoint refuses a connection (no listener on the ipc socket, or the socket file
 
 ### Endpoints
 
-`ipc://<graph dir>/<name>-<pid>.<instance>.sock` by default, shortened to `ipc://<graph dir>/<pid>.<instance>.sock`
+`ipc://<graph dir>/<name>-<pid>.<instance>.sock` by default, shortened to `ipc://<graph dir>/<instance>.sock`
 when the path would exceed {discovery._MAX_IPC_PATH} bytes (a Unix socket path holds 108; a node refuses
 to start when even the short path is too long: set `${discovery.GRAPH_DIR_ENV}` to a shorter
 directory). With `${discovery.TRANSPORT_ENV}=tcp` a node binds `tcp://127.0.0.1:<random port>`
