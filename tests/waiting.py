@@ -1,4 +1,5 @@
-"""The one way tests wait on a graph: spin until a condition holds, fail on timeout, and count a
+"""The one way tests wait on a graph: spin until a condition holds (`spin_until`), or until a
+publisher's readers subscribed (`handshake`), fail on timeout, and count a
 watched process's exit as a failure only after reading what it sent before it ended.
 
 A node that ends by design (`exit_when_done`, a launch's last step) may have sent its last
@@ -30,6 +31,13 @@ def spin_until(spin: Callable[[], object], predicate: Callable[[], bool], timeou
         if time.monotonic() > deadline:
             pytest.fail(f"waiting for {what or predicate}: not within {timeout_s} s")
         spin()
+
+
+def handshake(pub, timeout_s: float = 20.0, procs: Iterable = (), what: str = "", n: int = 1) -> None:
+    """Waits until `n` subscriptions match publisher `pub`'s topic (the slow-joiner handshake: what
+    `pub` sends next reaches them), failing on timeout or when one of `procs` exited first."""
+    spin_until(lambda: None, lambda: pub.wait_for_subscribers(n, 0.1), timeout_s, procs,
+               what or f"{n} subscriber(s) of {pub.topic}")
 
 
 def _read_what_is_left(spin: Callable[[], object], predicate: Callable[[], bool]) -> bool:

@@ -29,7 +29,7 @@ WALL_STAMPED_TOPICS = {"/grip/command", "/run/event"}    # stamped by the node's
 SKIPPED_TOPICS = {"/heartbeat"}                           # uptimes and counters of the processes
 
 
-def run(tmp: Path, name: str, steps: int, env: dict) -> tuple[dict, dict]:
+def run(tmp: Path, name: str, steps: int, env: dict, args: dict) -> tuple[dict, dict]:
     """One lock-step run; returns (summary without its wall time, {topic: [message fields]})."""
     summary, bag = tmp / f"{name}.json", tmp / f"{name}.mcap"
     launch = tmp / f"{name}.yaml"
@@ -37,7 +37,8 @@ def run(tmp: Path, name: str, steps: int, env: dict) -> tuple[dict, dict]:
         {"include": {"file": str(STABILIZE), "arg": [
             {"name": "steps", "value": str(steps)}, {"name": "seed", "value": "3"},
             {"name": "summary", "value": str(summary)}, {"name": "quiet", "value": "true"},
-            {"name": "estimate_timeout_s", "value": "0.002"}]}},
+            {"name": "estimate_timeout_s", "value": "0.002"},
+            *({"name": k, "value": v} for k, v in args.items())]}},
         {"node": {"pkg": "graph", "exec": "recorder", "param": [{"name": "path", "value": str(bag)}]}},
     ]}))
     done = subprocess.run([sys.executable, "-m", "incipient_slip.graph.launch", str(launch), "--graph", name],
@@ -59,8 +60,15 @@ def run(tmp: Path, name: str, steps: int, env: dict) -> tuple[dict, dict]:
                                                 for t, ms in messages.items()}
 
 
+# a run that ends after its steps, and one that a verdict ends first (s_d 1 drives F_N up to the
+# safety limit: failure in period 10); the graph once kept applying force for 5-11 periods after a
+# verdict, so the two recordings of one seed differed in length (quiet vs under load)
+ENDINGS = {"steps": ({}, "success"), "verdict": ({"s_d": "1.0", "k": "10.0"}, "failure")}
+
+
 @pytest.mark.timeout(900)
-def test_the_same_seed_gives_the_same_messages_and_verdict_quiet_and_under_a_cpu_hog(tmp_path):
+@pytest.mark.parametrize("ending", sorted(ENDINGS))
+def test_the_same_seed_gives_the_same_messages_and_verdict_quiet_and_under_a_cpu_hog(tmp_path, ending):
     env = {k: v for k, v in os.environ.items() if k != "SLIP_GRAPH_DIR"}
     # graphs of their own, out of everyone's way, under a path short enough for ipc sockets
     runtime = tempfile.mkdtemp(prefix="ls", dir="/tmp")
@@ -68,15 +76,19 @@ def test_the_same_seed_gives_the_same_messages_and_verdict_quiet_and_under_a_cpu
     steps = 12
     hogs = []
     try:
-        quiet = run(tmp_path, "quiet", steps, env)
+        args, outcome = ENDINGS[ending]
+        quiet = run(tmp_path, "quiet", steps, env, args)
         hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(1)]
-        loaded = run(tmp_path, "loaded", steps, env)
+        loaded = run(tmp_path, "loaded", steps, env, args)
     finally:
         for hog in hogs:
             hog.kill()
             hog.wait()
         shutil.rmtree(runtime, ignore_errors=True)
-    assert json.loads(quiet[0])["steps"] == steps and len(quiet[1]["/grip/command"]) == steps
+    judged = json.loads(quiet[0])["steps"]
+    assert json.loads(quiet[0])["outcome"] == outcome and (judged == steps) == (ending == "steps")
+    # the recording ends at the last judged period: nothing of a period after it
+    assert len(quiet[1]["/grip/command"]) == len(quiet[1]["/actuator/state"]) == judged
     assert quiet[0] == loaded[0]                      # verdict, counts, every per-period trace
     assert sorted(quiet[1]) == sorted(loaded[1])
     for topic in quiet[1]:

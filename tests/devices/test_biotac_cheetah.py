@@ -3,6 +3,7 @@
 unplug; and the reader node on it as a process (the fake installed as the module)."""
 from __future__ import annotations
 
+import signal
 import time
 
 import numpy as np
@@ -12,6 +13,7 @@ from incipient_slip.devices import biotac_emulator as em
 from incipient_slip.devices.biotac_cheetah import CheetahLink, slot_padding_ns
 from incipient_slip.graph.runtime import Node
 from incipient_slip.messages import BiotacPac
+from waiting import spin_until
 
 
 def fake(present=True, n=1, realtime=False):
@@ -102,15 +104,11 @@ def test_reader_node_on_the_cheetah_backend(graph, tmp_path):
     reader = graph.spawn(["python", "-m", "incipient_slip.nodes.biotac_reader", "backend:=cheetah",
                           "wait_subscribers:=1", "tare_on_start:=false"])
     try:
-        deadline = time.monotonic() + 40
-        while len(got) < 50:
-            assert reader.poll() is None, reader.stderr.read().decode()
-            assert time.monotonic() < deadline, "timed out"
-            probe.spin_once(0.02)
+        spin_until(lambda: probe.spin_once(0.02), lambda: len(got) >= 50, 40, [reader], "50 P_AC frames")
     finally:
         probe.close()
     reader.terminate()
-    assert reader.wait(10) == 0
+    assert reader.wait(10) == 128 + signal.SIGTERM
     assert [m.seq for m in got] == list(range(len(got)))
     assert np.diff([m.stamp_ns for m in got]).tolist() == [10_000_000] * (len(got) - 1)
     assert "on cheetah: streaming" in reader.stderr.read().decode()

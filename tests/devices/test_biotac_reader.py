@@ -3,10 +3,10 @@ what it publishes decodes to the emulator's values exactly, every fault kind is 
 visible through `slip topic echo`, bad parameters exit 2 with one line."""
 from __future__ import annotations
 
+import signal
 import json
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -14,6 +14,7 @@ import pytest
 from incipient_slip.devices import biotac as bt
 from incipient_slip.graph.runtime import Node
 from incipient_slip.messages import BiotacPac, BiotacSlow, BiotacStatus, BiotacTare
+from waiting import spin_until
 
 FAULTS = "parity_flip@30,parity_flip@31,error_word@40,error_word@41,crc@50,drop@60,repeat@70,counter_jump@80"
 FRAMES = 300
@@ -29,12 +30,7 @@ class Probe(Node):
         self.tare_pub = self.create_publisher(BiotacTare)
 
     def spin_until(self, predicate, procs, timeout_s=40.0):
-        deadline = time.monotonic() + timeout_s
-        while not predicate():
-            for p in procs:
-                assert p.poll() is None, f"{p.args} exited {p.returncode}: {p.stderr.read().decode()}"
-            assert time.monotonic() < deadline, "timed out"
-            self.spin_once(0.02)
+        spin_until(lambda: self.spin_once(0.02), predicate, timeout_s, procs, "the biotac reader")
 
 
 def start_emulator(graph, tmp_path, *extra):
@@ -92,7 +88,7 @@ def test_reader_publishes_the_emulators_values_exactly_and_counts_every_fault(gr
     assert (status["pac_frames_refused"], status["slow_frames_refused"]) == (2, 2)
     assert status["tare_state"] == "done"
     reader.terminate()
-    assert reader.wait(10) == 0
+    assert reader.wait(10) == 128 + signal.SIGTERM
 
 
 def test_reader_reports_a_missing_sensor(graph, tmp_path):
@@ -105,7 +101,7 @@ def test_reader_reports_a_missing_sensor(graph, tmp_path):
     finally:
         probe.close()
     reader.terminate()
-    assert reader.wait(10) == 0
+    assert reader.wait(10) == 128 + signal.SIGTERM
     assert "does not start with 'BT'" in reader.stderr.read().decode()
     assert not probe.pac and not probe.slow
 
@@ -139,7 +135,7 @@ def test_tare_on_request_sets_the_pdc_baseline(graph, tmp_path):
     finally:
         probe.close()
     reader.terminate()
-    assert reader.wait(10) == 0
+    assert reader.wait(10) == 128 + signal.SIGTERM
     pdc = np.array([m.pdc_counts for m in probe.slow[-30:]])
     assert probe.slow[-1].pdc_tare_counts == pytest.approx(pdc.mean(), abs=5)
     assert "tare done" in reader.stderr.read().decode()
@@ -174,7 +170,7 @@ def test_a_port_that_appears_after_the_start_is_one_info_line_and_one_that_never
             break
     for proc in (reader, never):
         proc.terminate()
-        assert proc.wait(10) == 0
+        assert proc.wait(10) == 128 + signal.SIGTERM
     said.append(reader.stderr.read().decode())
     assert "".join(said).count("waiting up to") == 1 and "WARNING" not in "".join(said), said
     assert "".join(never_said).count("waiting up to") == 1 and "WARNING: cannot open" in never_said[-1], never_said

@@ -2,7 +2,6 @@
 never a zero or NaN pose for an untracked or broken frame, exit 2 when no server answers."""
 from __future__ import annotations
 
-import time
 
 import numpy as np
 import pytest
@@ -12,6 +11,7 @@ from incipient_slip.devices.natnet_emulator import NatNetEmulator, free_udp_port
 from incipient_slip.graph.runtime import Node
 from incipient_slip.messages import ObjectPose
 from incipient_slip.nodes.mocap_bridge import MocapBridge, pose_from_frame
+from waiting import spin_until
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -87,12 +87,8 @@ class Probe(Node):
         self.create_subscription(ObjectPose, self.poses.append)
 
 
-def spin_until(nodes, predicate, timeout_s=15.0):
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < deadline, "timed out"
-        for node in nodes:
-            node.spin_once(0.002)
+def spin_nodes_until(nodes, predicate, timeout_s=15.0):
+    spin_until(lambda: [node.spin_once(0.002) for node in nodes], predicate, timeout_s)
 
 
 def test_bridge_publishes_tracked_poses_only_and_alarms_on_version_change(graph):
@@ -105,20 +101,20 @@ def test_bridge_publishes_tracked_poses_only_and_alarms_on_version_change(graph)
         probe = Probe(graph.dir)
         nodes = (bridge, probe)
         try:
-            spin_until(nodes, lambda: bridge.pose_pub.subscriber_count() >= 1)
-            spin_until(nodes, lambda: len(probe.poses) >= 5)
+            spin_nodes_until(nodes, lambda: bridge.pose_pub.subscriber_count() >= 1)
+            spin_nodes_until(nodes, lambda: len(probe.poses) >= 5)
             assert np.allclose(probe.poses[-1].position_mm, [10.0, 23.5, -2.0], atol=1e-4)
             emulator.tracking_lost = True
-            spin_until(nodes, lambda: bridge.skipped["untracked"] >= 5)
+            spin_nodes_until(nodes, lambda: bridge.skipped["untracked"] >= 5)
             emulator.tracking_lost, emulator.nan_pose = False, True
-            spin_until(nodes, lambda: bridge.skipped["non-finite"] >= 5)
+            spin_nodes_until(nodes, lambda: bridge.skipped["non-finite"] >= 5)
             emulator.nan_pose = False
             n = len(probe.poses)
-            spin_until(nodes, lambda: len(probe.poses) >= n + 5)
+            spin_nodes_until(nodes, lambda: len(probe.poses) >= n + 5)
             emulator.restart((4, 2))
-            spin_until(nodes, lambda: bridge.client.stats["version_changes"] == 1)
+            spin_nodes_until(nodes, lambda: bridge.client.stats["version_changes"] == 1)
             n = len(probe.poses)
-            spin_until(nodes, lambda: len(probe.poses) >= n + 5)
+            spin_nodes_until(nodes, lambda: len(probe.poses) >= n + 5)
         finally:
             bridge.close()
             probe.close()

@@ -4,7 +4,7 @@ hard, underflows are counted, and the node ramps to zero when the graph's heartb
 from __future__ import annotations
 
 import os
-import time
+from signal import SIGTERM
 
 import numpy as np
 import pytest
@@ -13,6 +13,7 @@ from scipy import signal
 from incipient_slip.devices import pzt
 from incipient_slip.graph.runtime import Node
 from incipient_slip.messages import Heartbeat, PztCommand, PztOutput, PztState
+from waiting import spin_until
 
 FS, BLOCK = 48000, 480
 
@@ -119,13 +120,11 @@ class Commander(Node):
         self.hb = self.create_publisher(Heartbeat)
 
     def spin_until(self, predicate, proc, timeout_s=30.0, beat=True):
-        deadline = time.monotonic() + timeout_s
-        while not predicate():
-            assert proc.poll() is None, proc.stderr.read().decode()
-            assert time.monotonic() < deadline, "timed out"
+        def spin():
             if beat:
                 self.hb.publish(Heartbeat(node=self.name, pid=os.getpid()))
             self.spin_once(0.02)
+        spin_until(spin, predicate, timeout_s, [proc], "the pzt injector")
 
 
 def test_node_ramps_to_zero_when_the_heartbeat_stops_and_on_shutdown(graph, tmp_path):
@@ -152,7 +151,7 @@ def test_node_ramps_to_zero_when_the_heartbeat_stops_and_on_shutdown(graph, tmp_
     finally:
         probe.close()
     proc.terminate()
-    assert proc.wait(10) == 0
+    assert proc.wait(10) == 128 + SIGTERM
     assert "no heartbeat from the graph" in proc.stderr.read().decode()
     x, fs = pzt.read_wav(wav)
     on = np.flatnonzero(np.abs(x) > 0)

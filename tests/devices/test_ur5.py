@@ -16,6 +16,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from incipient_slip.nodes.ur5 import PressLoop, explain
+from waiting import spin_until
 
 pytestmark = pytest.mark.timeout(90)
 LOOP = PressLoop(gain_mm_per_kpa=0.1, max_step_mm=0.5, safety_limit_kpa=6.0, max_press_mm=10.0, max_lift_mm=20.0)
@@ -198,11 +199,7 @@ class Probe(Node):
 
 
 def run(nodes, predicate, timeout_s=60.0):        # a hang guard (inside the test's timeout)
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < deadline, "timed out"
-        for node in nodes:
-            node.spin_once(0.002)
+    spin_until(lambda: [node.spin_once(0.002) for node in nodes], predicate, timeout_s)
 
 
 @pytest.fixture

@@ -4,7 +4,6 @@ exit 2 with one line."""
 from __future__ import annotations
 
 import os
-import time
 
 import pytest
 import serial
@@ -13,6 +12,7 @@ from incipient_slip.devices.zaber_emulator import ZaberEmulator
 from incipient_slip.graph.runtime import Node
 from incipient_slip.messages import ActuatorCommand, ActuatorState, BiotacStatus, GripCommand
 from incipient_slip.nodes.linear_actuator import LinearActuator, step_target_mm
+from waiting import spin_until
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -33,11 +33,7 @@ class Probe(Node):
 
 
 def run(nodes, predicate, timeout_s=20.0):
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < deadline, "timed out"
-        for node in nodes:
-            node.spin_once(0.002)
+    spin_until(lambda: [node.spin_once(0.002) for node in nodes], predicate, timeout_s)
 
 
 @pytest.fixture

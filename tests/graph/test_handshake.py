@@ -15,6 +15,7 @@ import pytest
 
 from incipient_slip import messages as M
 from incipient_slip.graph.runtime import HELLO, Node
+from waiting import spin_until
 
 
 def pac(i=0):
@@ -157,9 +158,6 @@ def test_missing_readers_names_them_without_blocking_until_their_hello_arrives(g
         for r in readers:
             r.create_subscription(M.BiotacPac, lambda m: None)
         with Spinner(stranger, *readers):
-            deadline = time.monotonic() + 20
-            while src.missing_readers() and time.monotonic() < deadline:
-                time.sleep(0.01)
-            assert src.missing_readers() == []
+            spin_until(lambda: time.sleep(0.01), lambda: src.missing_readers() == [], 20, (), "the readers' hellos")
         for n in (stranger, *readers):
             n.close()

@@ -293,3 +293,23 @@ def test_two_nodes_with_one_name_are_refused_naming_both_lines():
     """)
     with pytest.raises(LaunchError, match=r"names.yaml:4: node name 'recorder' is already used at names.yaml:3"):
         load_text(text, {}, "names.yaml")
+
+
+def test_a_bad_params_overlay_is_refused_before_any_node_starts_naming_the_file(tmp_path, capsys):
+    """rig_sim read the overlay only once started, so a bad one was found after the graph was up."""
+    from incipient_slip.graph.launch.resolve import check_node_inputs, load
+    bad, missing = tmp_path / "overlay.yaml", tmp_path / "missing.yaml"
+    bad.write_text("not: [yaml")
+    for path, why in ((bad, "not valid YAML"), (missing, "params overlay not found")):
+        with pytest.raises(LaunchError, match=rf"stabilize.yaml:\d+: node 'rig_sim': parameter 'params': .*{why}"):
+            check_node_inputs(load("stabilize.yaml", {"params": str(path)}))
+        assert main(["stabilize.yaml", f"params:={path}"]) == 2
+        err = capsys.readouterr().err
+        assert str(path) in err and "starting" not in err
+
+
+def test_a_bad_transport_is_refused_before_any_node_starts(monkeypatch, capsys):
+    monkeypatch.setenv("SLIP_TRANSPORT", "udp")
+    assert main(["stabilize.yaml"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("launch: error: $SLIP_TRANSPORT='udp'") and "starting" not in err

@@ -118,7 +118,7 @@ def test_sigint_stops_every_node_and_exits_130(graph, probe):
     assert not any(alive(i.pid) for i in nodes.values())
 
 
-def test_a_second_ctrl_c_kills_at_once_and_the_launch_says_so_with_1(graph, probe):
+def test_a_second_ctrl_c_kills_at_once_and_the_launch_says_so_with_3(graph, probe):
     proc = launch(graph, f"""
         launch:
           - node: {{exec: {STUBBORN}, name: stubborn}}
@@ -128,7 +128,7 @@ def test_a_second_ctrl_c_kills_at_once_and_the_launch_says_so_with_1(graph, prob
     probe.until(lambda: "SIGINT: shutting down" in _peek(proc), 10, what="the first SIGINT seen")
     proc.send_signal(signal.SIGINT)
     rc, _, err = finish(proc, timeout=10)
-    assert rc == 1 and "SIGKILL was needed for stubborn" in err
+    assert rc == 3 and "SIGKILL was needed for stubborn" in err
     assert not alive(node.pid)
 
 
@@ -201,3 +201,32 @@ def test_a_gate_that_passes_starts_the_nodes_after_it(graph):
     rc, _, err = finish(proc)
     assert rc == 3, err
     assert err.index("gate check passed; starting device") < err.index("required node device")
+
+
+def test_a_required_node_interrupted_from_outside_ends_the_launch_non_zero(graph, probe):
+    """SIGTERM or SIGINT to a node of a run (rig_sim, the estimator, the grip controller) ended
+    the launch with 0, counted a success by scripts and CI: the node now stops cleanly and exits
+    128 + the signal, and the launch with it."""
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        proc = launch(graph, f"""
+            launch:
+              - node: {{exec: {EXITER}, name: bystander}}
+              - node: {{exec: {EXITER}, name: rig, required: true}}
+        """)
+        node = probe.nodes(["rig", "bystander"], procs=[proc])["rig"]
+        os.kill(node.pid, sig)
+        rc, _, err = finish(proc)
+        assert rc == 128 + sig, err
+        assert f"required node rig exited with exit code {128 + sig} (stopped by {sig.name})" in err
+
+
+def test_a_launch_whose_run_ended_well_but_needed_sigkill_to_stop_exits_3(graph, probe):
+    """The docs said 1 for a stop that needed SIGKILL, the launcher returned the ending node's code
+    (0 here, or 3): now 3, a fault (a node did not stop), unless the ending node's code is not 0."""
+    proc = launch(graph, f"""
+        launch:
+          - node: {{exec: {STUBBORN}, name: stubborn}}
+          - node: {{exec: {EXITER}, name: supervisor, required: true, param: [{{name: after_s, value: 1.0}}]}}
+    """, "--grace", "1")
+    rc, _, err = finish(proc)
+    assert rc == 3 and "launch ends with code 3: SIGKILL was needed for stubborn" in err, err

@@ -8,9 +8,11 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
+from incipient_slip import messages as M
 from incipient_slip.graph import discovery
 
 SCAN = ("import sys; from pathlib import Path; from incipient_slip.graph import discovery; "
@@ -49,7 +51,9 @@ def test_a_scan_in_another_pid_namespace_keeps_a_live_node_and_removes_a_killed_
     node = graph.spawn(["python", "-c", NODE])
     probe.nodes(["live"], procs=[node])
     files = _settled_files(graph.dir)
-    assert [n for n in files if n.startswith("live-")] == [f"live-{node.pid}.node.json", f"live-{node.pid}.sock"]
+    instance = probe.nodes(["live"])["live"].instance
+    assert [n for n in files if n.startswith("live-")] == [f"live-{node.pid}.{instance}.node.json",
+                                                            f"live-{node.pid}.{instance}.sock"]
     # the outside check of issue 21: this returned [] and deleted the live node's files
     assert "live" in scan_in_new_pid_namespace(prefix, graph)
     assert _settled_files(graph.dir) == files
@@ -88,3 +92,39 @@ def test_a_socket_between_bind_and_listen_is_kept_and_an_old_dead_one_removed(gr
         os.utime(path, (old, old))
         discovery.scan(graph.dir)
         assert not path.exists()
+
+
+TWIN = ("import sys; from incipient_slip import messages as M; from incipient_slip.graph.runtime import Node; "
+        "n = Node('twin'); p = n.create_publisher(M.PztCommand); "
+        "n.create_timer(0.05, lambda: p.publish(M.PztCommand(intensity_db=float(sys.argv[1])))); n.spin()")
+
+
+def test_two_nodes_of_one_name_each_pid_1_of_its_own_pid_namespace_are_both_in_the_graph(graph, probe):
+    """Same name, same pid number (1) in two PID namespaces: before instance ids in the file and
+    socket names both wrote twin-1.node.json and bound twin-1.sock, so the graph saw one, and
+    when that one exited the other vanished with it."""
+    prefix = _unshare_prefix()
+    if prefix is None:
+        pytest.skip("unshare cannot make a PID namespace here")
+    heard: set[float] = set()
+    probe.node.create_subscription(M.PztCommand, lambda m: heard.add(m.intensity_db))
+    twins = [graph.spawn([*prefix, "python", "-c", TWIN, str(db)]) for db in (-1.0, -2.0)]
+    probe.until(lambda: heard >= {-1.0, -2.0}, 60, procs=twins, what="both twins heard")
+    twin_files = lambda: [i for i in discovery.scan(graph.dir) if i.name == "twin"]   # noqa: E731
+    assert sorted(i.pid for i in twin_files()) == [1, 1]
+    os.killpg(twins[0].pid, signal.SIGKILL)
+    twins[0].wait()
+    probe.until(lambda: len(twin_files()) == 1, 30, procs=twins[1:], what="the killed twin's files removed")
+    heard.clear()
+    probe.until(lambda: heard == {-2.0}, 30, procs=twins[1:], what="the other twin still heard")
+    assert [i.pid for i in twin_files()] == [1] and os.path.exists(twin_files()[0].endpoint[6:])
+
+
+def test_remove_pid_removes_a_killed_node_s_files_whatever_its_instance_id(graph):
+    info = discovery.NodeInfo("n", 4242, discovery.ipc_endpoint(graph.dir, "n", 4242, "0a1b2c3d"),
+                              instance="0a1b2c3d")
+    discovery.announce(graph.dir, info)
+    Path(info.endpoint[6:]).touch()
+    (graph.dir / "n-4243.0a1b2c3d.sock").touch()
+    assert discovery.remove_pid(graph.dir, 4242) == 2
+    assert sorted(os.listdir(graph.dir)) == ["n-4243.0a1b2c3d.sock"]

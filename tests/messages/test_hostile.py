@@ -3,7 +3,6 @@ wrong message), and a node that receives one counts it and keeps running."""
 from __future__ import annotations
 
 import dataclasses
-import time
 
 import msgpack
 import numpy as np
@@ -17,6 +16,7 @@ from incipient_slip.messages.codec import _validate_fields, decode_named
 from incipient_slip.messages.fields import INT_RANGES, Array, field_specs
 
 from test_messages import any_message
+from waiting import spin_until
 
 TYPES = list(M.MESSAGE_TYPES.values())
 ARRAY_TYPES = [cls for cls in TYPES if any(isinstance(s, Array) for _, s in field_specs(cls))]
@@ -291,10 +291,7 @@ def test_random_bytes_decode_only_to_message_error(body, cls):
 # --- the runtime ---------------------------------------------------------------------------
 
 def _spin_until(node, cond, timeout_s=20.0):
-    deadline = time.monotonic() + timeout_s
-    while not cond():
-        assert time.monotonic() < deadline, "condition not met in time"
-        node.spin_once(0.01)
+    spin_until(lambda: node.spin_once(0.01), cond, timeout_s)
 
 
 def test_node_counts_the_hostile_array_frame_and_keeps_delivering(graph):

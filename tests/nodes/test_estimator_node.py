@@ -2,6 +2,7 @@
 gaps and stale streams, bad frames dropped, window alignment equal to the offline features."""
 from __future__ import annotations
 
+import signal
 import time
 
 import numpy as np
@@ -13,6 +14,7 @@ from incipient_slip.models.modelfile import Model, save_model
 from incipient_slip.nodes.rig_sim import pac_frame_stamps_ns, slow_frame_stamps_ns
 from incipient_slip.nodes.estimator import Estimator
 from incipient_slip.graph.runtime import Node, run_node
+from waiting import handshake, spin_until
 
 PERIOD_NS = 500_000_000
 
@@ -44,19 +46,13 @@ class FakeBiotac(Node):
         self.create_subscription(SlipEstimate, self.estimates.append)
         self.create_subscription(Heartbeat, self.heartbeats.append)
 
-    def spin_until(self, predicate, timeout_s=15.0):
-        deadline = time.monotonic() + timeout_s
-        while not predicate():
-            assert time.monotonic() < deadline, "timed out"
-            self.spin_once(0.02)
+    def spin_until(self, predicate, timeout_s=15.0, procs=()):
+        spin_until(lambda: self.spin_once(0.02), predicate, timeout_s, procs, "the estimator")
 
     def handshake(self, pub, proc):
         """Both directions connected: the estimator subscribed to `pub`, we hear its heartbeat."""
-        deadline = time.monotonic() + 20
-        while not pub.wait_for_subscribers(1, 0.1):
-            assert proc.poll() is None, proc.stderr.read().decode()
-            assert time.monotonic() < deadline, "estimator never subscribed"
-        self.spin_until(lambda: any(h.node == "estimator" for h in self.heartbeats), 20)
+        handshake(pub, 20, [proc], "the estimator subscribed")
+        self.spin_until(lambda: any(h.node == "estimator" for h in self.heartbeats), 20, [proc])
 
     def send_pac(self, stream, frames, seq_of=lambda j: j, stamp_of=None):
         """Publishes P_AC frames j in `frames` from the counts `stream` (2200 Hz)."""
@@ -86,7 +82,7 @@ def estimator(graph, tmp_path):
     for node, proc, _ in nodes:
         node.close()
         proc.terminate()
-        assert proc.wait(10) == 0
+        assert proc.wait(10) == 128 + signal.SIGTERM
 
 
 def pac_stream(seconds, seed=0):
@@ -240,9 +236,7 @@ def test_period_origin_tick_cuts_host_time_stamps_at_the_actuators_ticks(estimat
     host = 1_795_000_000_123_456_789                 # an arbitrary host time_ns of period 0's start
     stream = pac_stream(4.0)
     node.send_pac(stream, range(0, 120), stamp_of=lambda j: host + int(pac_frame_stamps_ns(j // 50)[j % 50]))
-    deadline = time.monotonic() + 20
-    while not node.tick.wait_for_subscribers(1, 0.1):
-        assert time.monotonic() < deadline, "estimator never subscribed to the tick"
+    handshake(node.tick, 20, [proc], "the estimator subscribed to the tick")
     for _ in range(25):
         node.spin_once(0.01)
     assert node.estimates == []                      # no period before the origin is known

@@ -3,6 +3,7 @@ through the node and through the in-process `Rig.step_period` loop; lock-step, r
 scenes and faults."""
 from __future__ import annotations
 
+import signal
 import time
 
 import numpy as np
@@ -16,7 +17,7 @@ from incipient_slip.nodes.rig_sim import RigSim, pac_frame_stamps_ns, slow_frame
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.sim.dataset import simulate_series
 from incipient_slip.sim.rig import Rig, load_scene
-from waiting import spin_until
+from waiting import handshake, spin_until
 
 RECORDED = (BiotacPac, BiotacSlow, ObjectPose, RobotState, ActuatorState, PztState, SimTruth)
 
@@ -53,15 +54,12 @@ def start_rig(graph, **params):
 
 def connect(ctl, proc, pub):
     """Waits until rig_sim subscribed to `pub` (it waits for us on its own topics)."""
-    deadline = time.monotonic() + 20
-    while not pub.wait_for_subscribers(1, 0.1):
-        assert proc.poll() is None, proc.stderr.read().decode()
-        assert time.monotonic() < deadline, "rig_sim never subscribed"
+    handshake(pub, 20, [proc], "rig_sim subscribed")
 
 
 def stop(proc):
     proc.terminate()
-    assert proc.wait(10) == 0
+    assert proc.wait(10) == 128 + signal.SIGTERM      # stopped cleanly, by a signal
     return proc.stderr.read().decode()
 
 
@@ -223,7 +221,7 @@ def test_a_forged_command_moves_the_applied_force_at_most_one_rate_step_per_peri
 def test_a_scene_publishes_only_the_topics_of_its_effects(graph, scene, topics):
     with RigSim(params={"scene": scene}) as node:           # announced, not started
         assert sorted(node._info.publishes) == topics
-        assert sorted(node._info.subscribes) == ["/grip/command", "/pzt/command"]
+        assert sorted(node._info.subscribes) == ["/grip/command", "/pzt/command", "/run/event"]
 
 
 def test_lockstep_without_a_controller_is_a_fault_naming_the_period(graph, capsys):

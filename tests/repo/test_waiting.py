@@ -5,7 +5,7 @@ import sys
 
 import pytest
 
-from waiting import spin_until
+from waiting import handshake, spin_until
 
 
 def _ended(code: int) -> subprocess.Popen:
@@ -30,3 +30,22 @@ def test_an_exit_whose_messages_do_not_satisfy_the_wait_fails_with_its_stderr():
 def test_a_timeout_fails():
     with pytest.raises(pytest.fail.Exception, match="not within 0.05 s"):
         spin_until(lambda: None, lambda: False, 0.05)
+
+
+class _Pub:
+    topic = "/t"
+
+    def __init__(self, subscribed_after: int):
+        self.calls, self.after = 0, subscribed_after
+
+    def wait_for_subscribers(self, n, timeout_s):
+        self.calls += 1
+        return self.calls > self.after
+
+
+def test_a_handshake_waits_for_the_subscription_and_fails_when_the_reader_exits_without_it():
+    pub = _Pub(3)
+    handshake(pub, 5)
+    assert pub.calls == 4
+    with pytest.raises(pytest.fail.Exception, match=r"(?s)subscriber\(s\) of /t.*exited with 2"):
+        handshake(_Pub(10 ** 9), 30, [_ended(2)])

@@ -1,7 +1,9 @@
 """Discovery: where a graph lives and which nodes are in it, with no endpoint lists anywhere.
 
 Each node binds one XPUB socket (ipc by default) and announces itself by writing a small JSON
-file `<graph dir>/<name>-<pid>.node.json` holding its endpoint and the topics it publishes and
+file `<graph dir>/<name>-<pid>.<instance>.node.json` (instance: random, so that two nodes of one
+name and pid number in different PID namespaces, each PID 1 of its container, never share a
+file or an ipc socket) holding its endpoint and the topics it publishes and
 subscribes. A node's single SUB socket connects to every announced endpoint, rescanning the
 directory when it changes. So there is no broker hop (a message goes publisher -> subscriber
 directly, the same path as raw pyzmq) and no list of endpoints in any launch file. See
@@ -23,6 +25,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import secrets
 import socket
 import sys
 import tempfile
@@ -42,7 +45,7 @@ _PROBE_TIMEOUT_S = 0.2              # a loopback tcp probe that takes longer pro
 _ORPHAN_SOCKET_S = 10.0             # an ipc socket with no announcement younger than this is kept
 _MAX_IPC_PATH = 100                  # sun_path is 108 bytes including the NUL; keep a margin
 _SAFE = re.compile(r"[^A-Za-z0-9_.-]")
-_PID_FILE = re.compile(r"^\.?(?:.*-)?(\d+)(?:\.node\.json(?:\.tmp)?|\.sock)$")   # what a node leaves
+_PID_FILE = re.compile(r"^\.?(?:.*-)?(\d+)(?:\.[0-9a-f]+)?(?:\.node\.json(?:\.tmp)?|\.sock)$")   # what a node leaves
 
 
 class GraphNameError(ValueError):
@@ -108,11 +111,20 @@ def safe_name(name: str) -> str:
     return _SAFE.sub("_", name.strip("/")) or "node"
 
 
-def ipc_endpoint(directory: Path, name: str, pid: int) -> str:
+def new_instance() -> str:
+    """A node's instance id: random, in its file and socket names beside name and pid."""
+    return secrets.token_hex(4)
+
+
+def _stem(name: str, pid: int, instance: str) -> str:
+    return f"{safe_name(name)}-{pid}" + (f".{instance}" if instance else "")
+
+
+def ipc_endpoint(directory: Path, name: str, pid: int, instance: str = "") -> str:
     """The ipc endpoint of a node's XPUB; ValueError if the path is too long for a socket."""
-    path = f"{directory}/{safe_name(name)}-{pid}.sock"
+    path = f"{directory}/{_stem(name, pid, instance)}.sock"
     if len(path.encode()) > _MAX_IPC_PATH:
-        path = f"{directory}/{pid}.sock"
+        path = f"{directory}/{instance or pid}.sock"     # the instance alone is unique too
     if len(path.encode()) > _MAX_IPC_PATH:
         raise ValueError(f"ipc socket path {path!r} is longer than {_MAX_IPC_PATH} bytes; set "
                          f"{GRAPH_DIR_ENV} to a shorter directory")
@@ -143,16 +155,18 @@ class NodeInfo:
     pidns: str = ""       # the PID namespace its pid is in ("pid:[4026531836]"); "" unknown
     netns: str = ""       # the network namespace its tcp endpoint is in; "" unknown
     params: dict[str, Any] = field(default_factory=dict)
+    instance: str = ""    # random id in its file names (`new_instance`); "" for a hand-written one
 
 
 def announce(directory: Path, info: NodeInfo) -> Path:
     """Write (atomically) the announcement file of a node; returns its path."""
-    path = directory / f"{safe_name(info.name)}-{info.pid}{SUFFIX}"
+    path = directory / f"{_stem(info.name, info.pid, info.instance)}{SUFFIX}"
     tmp = directory / f".{path.name}.tmp"
     tmp.write_text(json.dumps({"name": info.name, "pid": info.pid, "endpoint": info.endpoint,
                                "publishes": info.publishes, "subscribes": info.subscribes,
                                "started_ns": info.started_ns, "pidns": info.pidns,
-                               "netns": info.netns, "params": info.params}, default=str))
+                               "netns": info.netns, "params": info.params,
+                               "instance": info.instance}, default=str))
     os.replace(tmp, path)
     info.path = path
     return path
@@ -311,7 +325,7 @@ def scan(directory: Path, clean: bool = True, refused: dict[str, str] | None = N
                             dict(raw.get("publishes", {})), dict(raw.get("subscribes", {})),
                             int(raw.get("started_ns", 0)), Path(entry.path),
                             str(raw.get("pidns", "")), str(raw.get("netns", "")),
-                            dict(raw.get("params", {})))
+                            dict(raw.get("params", {})), str(raw.get("instance", "")))
         except (OSError, ValueError, KeyError, TypeError):
             continue    # being replaced right now, or not ours
         if is_dead(info):
@@ -366,3 +380,10 @@ class Discovery:
         added, removed = sorted(current - self.endpoints), sorted(self.endpoints - current)
         self.endpoints = current
         return added, removed
+
+    def info_of(self, endpoint: str) -> NodeInfo | None:
+        """The announcement, as last scanned, of the node bound at `endpoint`."""
+        for info in self.infos:
+            if info.endpoint == endpoint:
+                return info
+        return None

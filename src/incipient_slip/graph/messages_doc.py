@@ -24,7 +24,7 @@ __all__ = ["render", "main", "ANNOUNCEMENT_KEYS"]
 REGENERATE = ".venv/bin/python -m incipient_slip.graph.messages_doc docs/messages.md"
 # The keys of an announcement file, as discovery.announce writes them (a test checks this).
 ANNOUNCEMENT_KEYS = ("name", "pid", "endpoint", "publishes", "subscribes", "started_ns", "pidns", "netns",
-                     "params")
+                     "params", "instance")
 
 _MSGPACK = {"bool": "bool", "str": "str", "float64": "float 64 (float 32 or int accepted)",
             **{w: "int" for w in INT_RANGES}}
@@ -220,17 +220,19 @@ graph; set `${discovery.GRAPH_ENV}` to run two graphs side by side.
 
 ### Announcement files
 
-`<graph dir>/<name>-<pid>{discovery.SUFFIX}`, `<name>` with every character other than letters,
+`<graph dir>/<name>-<pid>.<instance>{discovery.SUFFIX}` (`<instance>` random hex, so that nodes of one
+name and pid number in different PID namespaces never share a file; a file without it is read
+too), `<name>` with every character other than letters,
 digits, `_`, `.`, `-` replaced by `_`. Written atomically (a `.<file>.tmp` then rename), so a
 reader never sees half a file; files starting with `.` are ignored. Content: one JSON object
 with the keys {keys}:
 
 ```json
-{{"name": "estimator", "pid": 4242, "endpoint": "ipc:///run/user/1000/incipient-slip/default/estimator-4242.sock",
+{{"name": "estimator", "pid": 4242, "endpoint": "ipc:///run/user/1000/incipient-slip/default/estimator-4242.5f0c2a9e.sock",
  "publishes": {{"/slip/estimate": "SlipEstimate", "/heartbeat": "Heartbeat"}},
  "subscribes": {{"/biotac/pac": "BiotacPac", "/biotac/slow": "BiotacSlow", "/pzt/state": "PztState"}},
  "started_ns": 1700000000000000000, "pidns": "pid:[4026531836]", "netns": "net:[4026531840]",
- "params": {{"method": "injection", "window_s": 0.0}}}}
+ "params": {{"method": "injection", "window_s": 0.0}}, "instance": "5f0c2a9e"}}
 ```
 
 `publishes` and `subscribes` map topics (after remaps) to type names; the topic `*` is every
@@ -250,7 +252,7 @@ endpoint refuses a connection (no listener on the ipc socket, or the socket file
 
 ### Endpoints
 
-`ipc://<graph dir>/<name>-<pid>.sock` by default, shortened to `ipc://<graph dir>/<pid>.sock`
+`ipc://<graph dir>/<name>-<pid>.<instance>.sock` by default, shortened to `ipc://<graph dir>/<instance>.sock`
 when the path would exceed {discovery._MAX_IPC_PATH} bytes (a Unix socket path holds 108; a node refuses
 to start when even the short path is too long: set `${discovery.GRAPH_DIR_ENV}` to a shorter
 directory). With `${discovery.TRANSPORT_ENV}=tcp` a node binds `tcp://127.0.0.1:<random port>`

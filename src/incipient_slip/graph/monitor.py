@@ -55,6 +55,8 @@ class TopicStats:
 class Monitor(Node):
     """Counts messages per topic and prints what flowed, with PASS/FAIL."""
 
+    SIGNAL_ENDS_NORMALLY = True      # Ctrl-C is how it ends
+
     PARAMS = {"topics": [], "skip_topics": ["/heartbeat"], "expect_count": 0, "idle_s": 0.5,
               "timeout_s": 30.0, "summary_json": ""}
     INPUTS = {ANY_TOPIC: Message}     # every topic of the graph (see graph/launch/topology.py)

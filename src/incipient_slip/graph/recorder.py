@@ -29,6 +29,8 @@ from incipient_slip.graph.runtime import ANY_TOPIC, Node, run_node
 class Recorder(Node):
     """Records topics (all when `topics` is empty) to the MCAP file `path`."""
 
+    SIGNAL_ENDS_NORMALLY = True      # Ctrl-C is how it ends
+
     PARAMS = {
         "path": Param("recording.mcap", help="the MCAP file to write (replaced if it exists)"),
         "topics": Param([], help="topics to record; [] records every topic of the graph"),

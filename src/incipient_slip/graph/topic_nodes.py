@@ -29,6 +29,8 @@ def say(node: Node, text: str) -> None:
 class TopicList(Node):
     """Listens to every topic for `duration_s` and prints topics, types, publishers and rates."""
 
+    SIGNAL_ENDS_NORMALLY = True      # Ctrl-C is how it ends
+
     PARAMS = {"duration_s": 1.0, "json": False}
 
     def __init__(self, **kwargs):
@@ -95,6 +97,8 @@ NOTHING_YET_S = 3.0       # slip topic echo says it is still waiting after this 
 class TopicEcho(Node):
     """Prints each message on `topic` (YAML documents, or JSON lines), `count` times (0: forever)."""
 
+    SIGNAL_ENDS_NORMALLY = True      # Ctrl-C is how it ends
+
     PARAMS = {"topic": "", "count": 0, "json": False}
 
     def __init__(self, **kwargs):
@@ -128,6 +132,8 @@ class TopicEcho(Node):
 
 class TopicHz(Node):
     """Prints the rate of `topic` every second over the last `window` messages."""
+
+    SIGNAL_ENDS_NORMALLY = True      # Ctrl-C is how it ends
 
     PARAMS = {"topic": "", "window": 100, "duration_s": 0.0}
 

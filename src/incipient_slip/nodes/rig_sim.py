@@ -37,7 +37,11 @@ is due; a period is simulated when it starts, with the latest command (so the an
 k, which comes after its tick, applies from period k+2, as on a real robot).
 
 After `steps` periods it publishes nothing more and idles until SIGTERM (the supervisor ends a
-run), or exits 0 when `exit_when_done`.
+run), or exits 0 when `exit_when_done`. At the supervisor's verdict (`RunEvent` success, failure,
+fault or end) it stops at once: no further command is applied and no period simulated. With
+`wait_judge` (lock-step launches with a supervisor) period k+1 also waits for the supervisor's
+judgement of period k (its `RunEvent` step; a period that ends the run has its verdict sent
+before its step), so a run's recording ends at its last judged period at any load.
 """
 from __future__ import annotations
 
@@ -50,7 +54,7 @@ from incipient_slip import control
 from incipient_slip.errors import EXIT_FAULT
 from incipient_slip.messages import (
     PAC_RATE_HZ, PAC_SAMPLES_PER_FRAME, PERIOD_NS, ActuatorCommand, ActuatorState, BiotacPac, BiotacSlow, GripCommand, ObjectPose, PztCommand, PztState,
-    RobotState, SimTruth,
+    RobotState, RunEvent, SimTruth,
 )
 from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
@@ -84,10 +88,12 @@ def slow_frame_stamps_ns(k: int) -> np.ndarray:
 class RigSim(Node):
     """Steps the simulated rig one period at a time and publishes what the devices would."""
 
-    INPUTS = {GripCommand.TOPIC: GripCommand, PztCommand.TOPIC: PztCommand, ActuatorCommand.TOPIC: ActuatorCommand}
+    INPUTS = {GripCommand.TOPIC: GripCommand, PztCommand.TOPIC: PztCommand, ActuatorCommand.TOPIC: ActuatorCommand,
+              RunEvent.TOPIC: RunEvent}
     # the scene sets the injection, a command may switch it; only `commanded` reads the actuator's;
-    # the collection protocol reads no grip command (collect.yaml has no controller)
-    OPTIONAL_INPUTS = frozenset({PztCommand.TOPIC, ActuatorCommand.TOPIC, GripCommand.TOPIC})
+    # the collection protocol reads no grip command (collect.yaml has no controller); a launch
+    # without a supervisor has no verdict
+    OPTIONAL_INPUTS = frozenset({PztCommand.TOPIC, ActuatorCommand.TOPIC, GripCommand.TOPIC, RunEvent.TOPIC})
     OUTPUTS = {t.TOPIC: t for t in (BiotacPac, BiotacSlow, ObjectPose, PztState, RobotState, SimTruth, ActuatorState)}
     PARAMS = {
         "scene": Param("", help='scene file or name (scenes/); "": the scene of the method (control.SCENE_OF_METHOD)'),
@@ -107,6 +113,8 @@ class RigSim(Node):
         "steps": Param(450, lo=1, help="periods to simulate"),
         "lockstep": Param(True, help="true: start period k+1 when GripCommand(period=k) arrives"),
         "lockstep_timeout_s": Param(30.0, lo=0.0, help="lock-step: fault when no command this long (s); 0 waits forever"),
+        "wait_judge": Param(False, help="lock-step: period k+1 also waits for the supervisor's RunEvent step of "
+                                        "period k (a run's recording then ends at its last judged period)"),
         "realtime_factor": Param(1.0, lo=1e-3, help="real time: sim seconds per wall second"),
         "wait_subscribers": Param(1, lo=0, help="started by hand: readers per topic to wait for before period 0"),
         "wait_topics": Param([], help="[] = every topic it publishes"),
@@ -114,12 +122,19 @@ class RigSim(Node):
         "exit_when_done": Param(False, help="exit 0 after the last period"),
     }
 
+    @classmethod
+    def check_inputs(cls, params: dict, name: str = "rig_sim"):
+        """The scene with the params overlay applied; ParamError naming the parameter and the file
+        (run_node reports it in one line, exit 2; a launch before any node starts)."""
+        try:
+            return load_scene(control.scene_of(params["scene"], params["method"]), params["params"] or None)
+        except (SceneError, ValueError) as exc:
+            raise ParamError(f"node {name!r}: parameter {'params' if params['params'] else 'scene'!r}: "
+                             f"{exc}") from None
+
     def __init__(self, **kwargs):
         super().__init__("rig_sim", **kwargs)
-        try:
-            scene = load_scene(control.scene_of(self.param("scene"), self.param("method")), self.param("params") or None)
-        except (SceneError, ValueError) as exc:        # run_node reports a ParamError in one line, exit 2
-            raise ParamError(f"node {self.name!r}: parameter 'scene': {exc}") from None
+        scene = self.check_inputs(self.params, self.name)
         material = self.param("material") or scene.materials[0]
         if material not in scene.materials:
             raise ParamError(f"node {self.name!r}: parameter 'material' = {material!r} is not in "
@@ -156,6 +171,9 @@ class RigSim(Node):
         if self.commanded:
             self.create_subscription(ActuatorCommand, self.on_actuator)
         self.create_subscription(PztCommand, self.on_pzt)
+        self.create_subscription(RunEvent, self.on_run_event)
+        self.judged = 0                   # periods the supervisor judged (its RunEvent steps)
+        self.ended = False                # the supervisor's verdict arrived: nothing more is applied
 
         self.k = 0                        # next period to simulate
         self.last_command = -1            # period of the last command applied
@@ -240,7 +258,7 @@ class RigSim(Node):
 
     def release_due(self) -> None:
         """Real time: publish every message whose stamp is due; simulate periods as they start."""
-        if self.done:
+        if self.done or self.ended:
             return
         now_ns = int((time.monotonic() - self.t0) * self.param("realtime_factor") * 1e9)
         while True:
@@ -287,7 +305,7 @@ class RigSim(Node):
             self.refused_commands += 1
             self.warn(f"refused {what}(period={period}): the rig is at period {newest}, last "
                       f"command {last} ({self.refused_commands} refused)", throttle_s=1.0)
-        return ok and not self.done
+        return ok and not self.done and not self.ended
 
     def on_grip(self, msg: GripCommand) -> None:
         # The node that moves the (simulated) hardware checks on its own: a command is for the
@@ -305,8 +323,7 @@ class RigSim(Node):
                           f"{self.force_kpa} kPa (safety limit {control.SAFETY_LIMIT_KPA} kPa, at most "
                           f"{self.param('max_step_kpa')} kPa per period; {self.clamped_commands} clamped)",
                           throttle_s=1.0)
-        if self.lockstep and (not self.commanded or self.last_actuator == msg.period):
-            self.advance()
+        self.next_period()
 
     def on_actuator(self, msg: ActuatorCommand) -> None:
         # checked as a grip command is, and clamped to the actuator's travel
@@ -318,8 +335,25 @@ class RigSim(Node):
         if self.actuator_mm != msg.position_mm:
             self.warn(f"ActuatorCommand(period={msg.period}) asked {msg.position_mm} mm; moving to "
                       f"{self.actuator_mm} mm (limits 0..{limit} mm)", throttle_s=1.0)
-        if self.lockstep and self.last_command == msg.period:
+        self.next_period()
+
+    def next_period(self) -> None:
+        """Lock-step: period k+1 once period k is answered (its grip command, and its actuator
+        command when `commanded`) and, with `wait_judge`, judged; never after the verdict."""
+        k = self.k - 1
+        if (self.lockstep and not self.done and not self.ended and self.last_command == k
+                and (not self.commanded or self.last_actuator == k)
+                and (not self.param("wait_judge") or self.judged > k)):
             self.advance()
+
+    def on_run_event(self, msg: RunEvent) -> None:
+        if msg.kind == "step":
+            self.judged = max(self.judged, msg.step)
+            self.next_period()
+        elif msg.kind in ("success", "failure", "fault", "end") and not self.ended:
+            self.ended = True
+            self.waiting_since = None
+            self.log(f"the supervisor's verdict ({msg.kind}) after period {self.k - 1}: nothing more is applied")
 
     def on_pzt(self, msg: PztCommand) -> None:
         try:

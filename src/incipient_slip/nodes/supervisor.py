@@ -85,6 +85,7 @@ class Supervisor(Node):
         self.last_command: float | None = None
         self.pzt_on = self.summary = None
         self.steps_sent = 0
+        self.verdict_sent = False
         self.events = self.create_publisher(RunEvent)
         self.input_ns = 0       # the latest stamp of an input: events carry it (one time base)
         self.origin = control.PeriodOrigin(p("period_origin"), held_max=2000)
@@ -143,6 +144,8 @@ class Supervisor(Node):
     def watchdog(self) -> None:
         j, now = self.judge, time.monotonic()
         verdict = j.close(now)
+        if verdict.ended:       # before the last period's step: rig_sim (wait_judge) stops there
+            self.publish_verdict()
         for i in range(self.steps_sent, j.steps):           # one RunEvent per judged period
             self.events.publish(RunEvent(stamp_ns=self.input_ns, kind="step", step=i + 1, object_travel_mm=j.traces["travel_mm"][i],
                                          normal_force_kpa=j.traces["force_kpa"][i]))
@@ -189,12 +192,20 @@ class Supervisor(Node):
             tmp.replace(path)       # readers never see a half-written summary
         if not self.param("quiet"):
             print(control.format_summary(self.summary, path), flush=True)
-        if j.verdict.kind in RUN_EVENT_KINDS:
-            self.events.publish(RunEvent(stamp_ns=self.input_ns, kind=j.verdict.kind, step=j.steps, detail=j.verdict.detail,
-                                         object_travel_mm=j.travel_mm, normal_force_kpa=j.force_kpa))
+        self.publish_verdict()
         self.events.publish(RunEvent(stamp_ns=self.input_ns, kind="end", step=j.steps, detail=j.verdict.kind))
         if j.verdict.kind in control.EXIT_CODES:   # "interrupted": a signal already ends the node
             self.shutdown(j.verdict.detail, exit_code=control.EXIT_CODES[j.verdict.kind])
+
+    def publish_verdict(self) -> None:
+        """The verdict's RunEvent, once: as soon as a judged period ends the run (before that
+        period's step event, so that a rig waiting for the judgement stops at it), else at the end."""
+        j = self.judge
+        if self.verdict_sent or j.verdict.kind not in RUN_EVENT_KINDS:
+            return
+        self.verdict_sent = True
+        self.events.publish(RunEvent(stamp_ns=self.input_ns, kind=j.verdict.kind, step=j.steps, detail=j.verdict.detail,
+                                     object_travel_mm=j.travel_mm, normal_force_kpa=j.force_kpa))
 
 
 def main(argv=None):

@@ -32,10 +32,12 @@ Each publisher is told the readers of its outputs and waits for them by name at 
 
 How a launch ends: a required node that exits ends it with that node's code (0 when it finished
 cleanly, e.g. a supervisor at the end of a run; 2 when it refused its input, a param or a file;
-128+N when signal N killed it), its last line repeated last. A node that exits 2 is not respawned. Ctrl-C or SIGTERM stops
-every node (SIGTERM in reverse start order, then SIGKILL after the grace period; a second Ctrl-C
-kills at once) and exits 130 (143 for SIGTERM), or 1 if a node had to be killed. When every node has exited by
-itself the launch exits 0, or with the first non-zero code.
+128+N when signal N killed it, or stopped it cleanly when sent from outside the launch: 143 for
+SIGTERM, an interrupted run), its last line repeated last. A node that exits 2 is not respawned.
+Ctrl-C or SIGTERM stops every node (SIGTERM in reverse start order, then SIGKILL after the grace
+period; a second Ctrl-C kills at once) and exits 130 (143 for SIGTERM). A stop that needed SIGKILL
+exits 3 (a fault), unless a required node had already exited non-zero. When every node has exited
+by itself the launch exits 0, or with the first non-zero code.
 """
 # The package in four steps: parse (YAML -> actions with lines), substitute ($(...), conditions),
 # resolve (args, groups, includes, node specs, param checks; topology: who writes and reads what),
@@ -48,9 +50,10 @@ import sys
 import yaml
 
 from incipient_slip.errors import EXIT_USAGE
-from incipient_slip.graph import discovery
+from incipient_slip.graph import discovery, security
 from incipient_slip.graph.launch.parse import LaunchError, parse_document
-from incipient_slip.graph.launch.resolve import LaunchDescription, NodeSpec, find_launch_file, load, load_text
+from incipient_slip.graph.launch.resolve import (LaunchDescription, NodeSpec, check_node_inputs, find_launch_file,
+                                                 load, load_text)
 from incipient_slip.graph.launch.supervise import GRACE_S, Launcher
 
 __all__ = ["LaunchError", "NodeSpec", "LaunchDescription", "parse_document", "load", "load_text",
@@ -140,6 +143,8 @@ def main(argv: list[str] | None = None) -> int:
             print(_dot(desc) if args.dot else _printed(desc.to_plain()), end="")
             return 0
         graph_dir = discovery.graph_dir(args.graph)
+        security.transport()       # $SLIP_TRANSPORT, before any node starts (TransportError)
+        check_node_inputs(desc)    # the files params name (an overlay), likewise
     except (LaunchError, discovery.GraphNameError) as exc:
         print(f"launch: error: {exc}", file=sys.stderr)
         return EXIT_USAGE

@@ -21,7 +21,7 @@ from incipient_slip import paths
 from incipient_slip.graph.launch.parse import Action, LaunchError, Marked, declared_args, parse_document
 from incipient_slip.graph.launch.substitute import Scope
 from incipient_slip.graph.launch.topology import TOPICS_ENV, NodeTopics, Topology, node_class
-from incipient_slip.graph.params import ParamError, check_params, declared_params, format_value
+from incipient_slip.graph.params import ParamError, check_params, declared_params, format_value, merge_params
 from incipient_slip.graph.runtime import ANY_TOPIC, READERS_ENV, WRITERS_ENV
 
 __all__ = ["NodeSpec", "LaunchDescription", "find_launch_file", "load", "load_text", "NODE_PACKAGES"]
@@ -153,6 +153,21 @@ def _check_and_connect(desc: LaunchDescription) -> None:
             spec.env[WRITERS_ENV] = json.dumps(writers, separators=(",", ":"))
         if ANY_TOPIC in (desc.topology.node(spec.name).inputs or {}):
             spec.env[TOPICS_ENV] = json.dumps(desc.topology.typed_topics(), separators=(",", ":"))
+
+
+def check_node_inputs(desc: LaunchDescription) -> None:
+    """Checks what each node's params name outside the launch file (`Node.check_inputs`: a params
+    overlay...), as the launcher does before it starts any node; LaunchError naming the node's
+    line, the parameter and the file. Not part of `load`: `--print` and tests resolve launches
+    whose files exist only where they run."""
+    for spec in desc.nodes:
+        klass = node_class(spec.target)
+        if klass is None:
+            continue
+        try:
+            klass.check_inputs(merge_params(spec.name, declared_params(klass), spec.params), spec.name)
+        except ParamError as exc:
+            raise LaunchError(f"{spec.source}: {exc}") from None
 
 
 def _resolve_actions(actions: list[Action], scope: Scope, desc: LaunchDescription) -> None:

@@ -7,11 +7,15 @@ the discovery file and ipc socket it may have left (a SIGKILLed node cannot).
 
 Exit codes of a launch (docs/graph.md):
   * a required node exits: the others are stopped; the launch exits with its code (128+N for
-    signal N; 2 for bad input: a parameter, a model file), its last line repeated last;
+    signal N, also when the node stopped cleanly on SIGTERM/SIGINT sent from outside the launch:
+    143, 130 — an interrupted run is not a success; 2 for bad input: a parameter, a model file),
+    its last line repeated last;
   * a node that exits 2 is not respawned (restarting cannot fix its input);
   * Ctrl-C / SIGTERM: the nodes are stopped; 128 + the signal (130 for Ctrl-C, 143 for
-    SIGTERM, as a shell reports it), or 1 if any node had to be SIGKILLed (at the grace
-    deadline, or at once by a second Ctrl-C);
+    SIGTERM, as a shell reports it);
+  * a stop that needed SIGKILL (at the grace deadline, or at once by a second Ctrl-C): 3, a
+    fault (a node did not stop), unless a required node had already exited non-zero (its code:
+    the cause first);
   * every node exited by itself: 0, or the first non-zero code.
 """
 from __future__ import annotations
@@ -24,7 +28,7 @@ import threading
 import time
 from pathlib import Path
 
-from incipient_slip.errors import EXIT_FAILURE, EXIT_USAGE
+from incipient_slip.errors import EXIT_FAULT, EXIT_SIGNAL_BASE, EXIT_USAGE
 from incipient_slip.graph import discovery
 from incipient_slip.graph.launch.resolve import LaunchDescription, NodeSpec
 
@@ -32,7 +36,7 @@ __all__ = ["Launcher", "GRACE_S", "EXIT_KILLED"]
 
 GRACE_S = 30.0          # default: SIGTERM ... SIGKILL budget for the whole graph: a loaded
                         # machine can take seconds to flush and tear down a node (issue 21)
-EXIT_KILLED = EXIT_FAILURE   # a stop that needed SIGKILL
+EXIT_KILLED = EXIT_FAULT     # a stop that needed SIGKILL: a node did not stop
 TICK_S = 0.05           # supervision tick: node exits are found by polling
 
 
@@ -43,6 +47,11 @@ def describe(rc: int) -> str:
             return f"signal {signal.Signals(-rc).name}"
         except ValueError:
             return f"signal {-rc}"
+    if EXIT_SIGNAL_BASE < rc < EXIT_SIGNAL_BASE + 32:   # a node that stopped cleanly on a signal
+        try:
+            return f"exit code {rc} (stopped by {signal.Signals(rc - EXIT_SIGNAL_BASE).name})"
+        except ValueError:
+            pass
     return f"exit code {rc}"
 
 
@@ -163,9 +172,7 @@ class Launcher:
                 self.say(f"{signal.Signals(self._signal).name}: shutting down")
                 self._shutdown()
                 if self._killed:
-                    self.say(f"launch ends with code {EXIT_KILLED}: SIGKILL was needed for "
-                             f"{', '.join(sorted(self._killed))}")
-                    return EXIT_KILLED
+                    return self._killed_code()
                 return 128 + self._signal     # as a shell reports it: 130 for Ctrl-C
             now = time.monotonic()
             alive = 0
@@ -196,6 +203,8 @@ class Launcher:
                     verb = "finished" if rc == 0 else ("died" if rc < 0 else "exited")
                     self.say(f"required node {spec.name} {verb} with {describe(rc)}; shutting down the graph")
                     self._shutdown()
+                    if rc == 0 and self._killed:
+                        return self._killed_code()
                     if rc != 0:     # the cause last, where it is seen: the node's own last line
                         last = proc.last_err.decode(errors="replace").strip()
                         self.say(f"launch ends with code {exit_code(rc)}: required node {spec.name} "
@@ -209,6 +218,11 @@ class Launcher:
                 self.say("all nodes have exited")
                 return first_failure
             time.sleep(TICK_S)
+
+    def _killed_code(self) -> int:
+        self.say(f"launch ends with code {EXIT_KILLED}: SIGKILL was needed for "
+                 f"{', '.join(sorted(self._killed))}")
+        return EXIT_KILLED
 
     def _pass_gate(self, proc: _Proc) -> int | None:
         """Waits for a gate node to exit. Exit 0: None (start the rest); a signal: None (the
@@ -256,5 +270,5 @@ class Launcher:
                 proc.popen.wait()
                 self._killed.add(proc.spec.name)
             self._ended(proc, proc.popen.returncode)
-            if proc.rc not in (0, -signal.SIGTERM):
+            if proc.rc not in (0, -signal.SIGTERM, EXIT_SIGNAL_BASE + signal.SIGTERM):
                 self.say(f"{proc.spec.name} stopped with {describe(proc.rc)}")
