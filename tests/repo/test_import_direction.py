@@ -97,7 +97,7 @@ IDENTIFY_ALLOWED = {
     "identify.protocol": set(),
     "identify.windows": {"identify.protocol"},
     "identify.fit": {"identify.protocol"},
-    "identify.figures": {"identify.protocol"},
+    "identify.figures": {"identify.protocol", "identify.fit"},
     "identify.overlay": {"identify.protocol", "identify.figures"},
 }
 

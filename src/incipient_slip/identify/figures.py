@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .fit import slope_points
 from .protocol import PERIOD_S
 
 
@@ -43,8 +44,8 @@ def _stiffness(plt, results: dict, path: Path, label: str) -> str:
                         label=f"{row['fn_kpa']:.1f} kPa{' run-in' if row['phase'] == 'run-in' else ''}: "
                               f"k_b {row['k_b']:.3f} N/mm, mu {row['mu']:.3f}")
         if math.isfinite(row["k_b"]):
-            qq = np.array([0.3 * q.max(), q.max()])
-            m = q >= 0.3 * q.max()
+            m = slope_points(q)
+            qq = np.array([q[m].min(), q[m].max()])
             c = float(np.mean(y[m] - y[0] - q[m] / row["k_b"]))
             ax.plot(qq, c + qq / row["k_b"], "k--", lw=0.6)
         if row["slid"]:
