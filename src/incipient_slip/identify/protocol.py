@@ -72,6 +72,7 @@ class Plan:
     levels_kpa: tuple = (5.9, 4.7, 3.5, 2.3, 1.1)
     step_mm: float = 0.1                 # actuator step per period on a ramp
     slide_rise_mm: float = 0.02          # a ramp slid when y rises this much above its stuck steps
+    slide_needs_rise: bool = False       # real-time rigs: the paper's within-period rule alone ends no ramp
     settle_periods: int = 6              # periods at a new F_N before a ramp starts
     max_rise_kpa: float = 1.0            # F_N rises at most this per period (a press loop overshoots a big step)
     max_travel_mm: float = 48.0          # the actuator never goes past this (stage limit)
@@ -174,17 +175,18 @@ def spring_load_n(rec: Record, ks: float) -> float:
     return ks * (rec.u_mm - rec.y_mm)
 
 
-def ramp_slid(ramp: list[Record], rise_mm: float = labels.GROSS_SLIP_MM) -> bool:
+def ramp_slid(ramp: list[Record], rise_mm: float = labels.GROSS_SLIP_MM, needs_rise: bool = False) -> bool:
     """The last period of a ramp (constant F_N, one actuator step per period) slid: the paper's
     rule, or y rose `rise_mm` more than the ramp's stuck steps raise it (the median of the
     previous five rises: on a soft pad a step alone raises y by up to ~0.02 mm). On a real-time
     rig the robot's press loop moves F_N a little every period and y with it, so the rise test
-    needs a wider margin there (Plan.slide_rise_mm, docs/identification.md)."""
+    needs a wider margin there (Plan.slide_rise_mm), and with `needs_rise` the rise alone decides:
+    a press move that lands inside the window moves y by 0.02 mm there without a slide (the paper's
+    rule ended a 2.3 kPa ramp at half its friction limit; docs/identification.md)."""
     rec = ramp[-1]
-    if rec.slid:
-        return True
     before = [r.rise_mm for r in ramp[-6:-1]]
-    return len(before) >= 3 and rec.rise_mm - float(np.median(before)) >= rise_mm
+    rose = len(before) >= 3 and rec.rise_mm - float(np.median(before)) >= rise_mm
+    return rose if needs_rise else rec.slid or rose
 
 
 def run_protocol(plan: Plan, inputs: Inputs, records: list[Record]) -> Protocol:
@@ -234,10 +236,11 @@ def run_protocol(plan: Plan, inputs: Inputs, records: list[Record]) -> Protocol:
             ramp: list[Record] = []
             while True:
                 ramp.append((yield from period(fn, u, phase, trial)))
-                if ramp_slid(ramp, plan.slide_rise_mm) or u >= plan.max_travel_mm:
+                slid = ramp_slid(ramp, plan.slide_rise_mm, plan.slide_needs_rise)
+                if slid or u >= plan.max_travel_mm:
                     break
                 u = min(u + plan.step_mm, plan.max_travel_mm)
-            if ramp_slid(ramp, plan.slide_rise_mm) and len(ramp) >= 2:
+            if slid and len(ramp) >= 2:
                 ramp[-1].onset = True
                 prev = ramp[-2]
                 mu_onsets.append(spring_load_n(prev, ks) / (fn * inputs.newton_per_kpa))

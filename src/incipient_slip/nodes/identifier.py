@@ -56,6 +56,8 @@ class Identifier(Node):
         "lag_high_kpa": Param(5.9, lo=0.1, hi=6.0, help="the lag trials' F_N before the step (kPa)"),
         "lag_low_kpa": Param(2.3, lo=0.1, hi=6.0, help="the lag trials' F_N after the step (kPa)"),
         "slide_rise_mm": Param(0.02, lo=1e-3, hi=1.0, help="a ramp slid when y rises this much above its stuck steps (mm)"),
+        "slide_needs_rise": Param(False, choices=(False, True),
+                                  help="true (real-time rigs): only that rise ends a ramp, not the paper's within-period rule"),
         "max_travel_mm": Param(48.0, lo=0.0, hi=50.0, help="the actuator never goes past this (mm)"),
         "protocols": Param("stiffness,lag,no_action", help="which protocols to run, in this order (comma-separated)"),
         "no_action_steps": Param(450, lo=1, help="steps of the no-action check (paper: 450)"),
@@ -75,7 +77,8 @@ class Identifier(Node):
         try:
             self.plan = identify.Plan(levels_kpa=tuple(float(x) for x in str(p("levels_kpa")).split(",")),
                                       step_mm=p("step_mm"), max_travel_mm=p("max_travel_mm"),
-                                      slide_rise_mm=p("slide_rise_mm"), max_rise_kpa=p("max_rise_kpa"),
+                                      slide_rise_mm=p("slide_rise_mm"), slide_needs_rise=p("slide_needs_rise"),
+                                      max_rise_kpa=p("max_rise_kpa"),
                                       lag_high_kpa=p("lag_high_kpa"), lag_low_kpa=p("lag_low_kpa"),
                                       protocols=tuple(x.strip() for x in str(p("protocols")).split(",")),
                                       no_action_steps=p("no_action_steps"))
