@@ -88,8 +88,15 @@ def diagnosis() -> dict:
             "step": {"0/0.6": {"2 kPa": phase, "5 kPa": phase}}}
 
 
+def identification() -> dict:
+    rows = [{"set": i, "periods": 2400, "seconds": 0.4, "k_b": (0.5, 0.501), "beta": (1.0, 1.002),
+             "mu": (0.55, 0.552), "lag": (0.3, 0.35)} for i in range(2)]
+    return {"budget": "quick", "sets": 2, "first_seed": 0, "rows": rows,
+            "largest": {"k_b": 0.002, "beta": 0.002, "mu": 0.004, "lag": 0.05}}
+
+
 SAMPLES = {"calibration": calibration, "validation": validation, "estimation": estimation, "accuracy-vs-time": accuracy_vs_time,
-           "models": models, "stabilization": stabilization, "diagnosis": diagnosis}
+           "models": models, "stabilization": stabilization, "diagnosis": diagnosis, "identification": identification}
 
 
 def docs_page(name: str) -> Path:

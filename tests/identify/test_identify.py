@@ -238,7 +238,7 @@ def test_launch_identify_through_the_emulated_devices_recovers_one_hidden_set(gr
     """rig:=emulated: the real device nodes (BioTac reader, mocap bridge, Zaber stage in commanded
     mode, UR5 pressing on P_DC) against the emulators around one simulated contact, in real time.
     Two levels, stiffness only (a real-time period takes ~1 s); the press loop's F_N ripple is the
-    extra noise (the bounds below are the spread seen on this path)."""
+    extra noise (the bounds below: docs/identification.md, "Identification to 10 %")."""
     materials = load_params("default")[0]["materials"]
     scene = tmp_path / "hidden.yaml"
     scene.write_text(yaml.safe_dump({
@@ -255,19 +255,21 @@ def test_launch_identify_through_the_emulated_devices_recovers_one_hidden_set(gr
     assert done.returncode == 0, stderr.decode()[-3000:]
     doc = load_overlay(out / "identify_overlay.yaml")
     assert doc["provenance"]["rig"] == "emulated"
-    # Through the real-time emulated devices the reads spread more than on the lock-step rig (the
-    # press loop's F_N ripple, the windows after each move): of 5 fresh-clone CI runs and 3 runs
-    # alone on 2026-11-26, one read k_b 0.452 for 0.58 (-22 %) and one mu 0.534 for 0.48 (+11 %),
-    # the others within 10 %; the cause of the k_b miss is not found (docs/identification.md,
-    # known limits). The bounds are that spread, not the lock-step tolerances. On a miss the
-    # message carries the identifier's log, to find the cause.
+    # The spread over repeated runs (bench/bench_identify_emulated.py, docs/identification.md,
+    # "Identification to 10 %"): the press loop's F_N ripple once let the contact slip partly just
+    # below a ramp's onset, which levered its slope; the slope is now read up to 80 % of the ramp's
+    # load. mu is the rig's own: the emulated contact (seed 0) draws its friction 5.8 % above the
+    # hidden mu (the series spread), which the 15 % bound here used to absorb. On a miss the message
+    # carries the identifier's log.
+    from incipient_slip.sim.rig import Rig
+    from incipient_slip.sim.scene import load_scene
+    mu_rig = Rig(load_scene(str(scene)), "pla", 0).mu_s
     log = "\n".join(line for line in stderr.decode().splitlines() if line.startswith(("[identifier]", "[ur5]")))
-    assert doc["pre_slip"]["bulk_shear_n_per_mm"]["value"] == pytest.approx(0.58, rel=0.25), log[-3000:]
+    assert doc["pre_slip"]["bulk_shear_n_per_mm"]["value"] == pytest.approx(0.58, rel=0.10), log[-3000:]
     assert doc["pre_slip"]["bulk_stiffening_exponent"]["value"] == pytest.approx(0.85, abs=0.15), log[-3000:]
-    # mu: the identified interval must hold the truth, the value within 15 %
     mu = doc["materials"]["pla"]["mu_identified"]
-    assert mu["interval"][0] <= 0.48 <= mu["interval"][1], (mu, log[-3000:])
-    assert mu["value"] == pytest.approx(0.48, rel=0.15), log[-3000:]
+    assert mu["interval"][0] <= mu_rig <= mu["interval"][1], (mu, log[-3000:])
+    assert mu["value"] == pytest.approx(mu_rig, rel=0.10), log[-3000:]
 
 
 def test_an_overlay_reaches_every_command_that_takes_the_simulators_params(graph, tmp_path):
@@ -321,11 +323,57 @@ def test_identify_launch_resolves_each_rig_with_the_stage_commanded_and_the_cloc
         assert set(got) == {"rig_sim", "identifier"}
         assert got["rig_sim"].params["protocol"] == "commanded" and ident["clock"] == "tick_end"
         assert ident["levels_kpa"] == "5.9,4.7,3.5,2.3,1.1" and ident["slide_rise_mm"] == 0.02
+        assert ident["slide_needs_rise"] is False
     else:
         assert {"linear_actuator", "ur5", "mocap_bridge", "biotac_reader"} <= set(got)
         assert got["linear_actuator"].params["mode"] == "commanded" and got["linear_actuator"].required
-        assert ident["clock"] == "tick_start" and ident["slide_rise_mm"] == 0.08
+        assert ident["clock"] == "tick_start" and ident["slide_rise_mm"] == 0.08 and ident["slide_needs_rise"] is True
         # a press loop ripples F_N: the plan stays clear of the 6.0 kPa limit where the robot retracts
         assert max(float(x) for x in ident["levels_kpa"].split(",")) <= 5.5 and ident["lag_high_kpa"] <= 5.5
     if rig == "hardware":
         assert got["rig_check"].gate and "emulated_rig" not in got
+
+
+def test_a_partial_slip_just_below_the_onset_does_not_lever_the_ramps_slope():
+    """rig:=emulated: the press loop moves F_N ~4 % a period at 1.1 kPa; a dip near the onset lets
+    the contact slip partly (0.1 mm), too little for the slide rules, so that period counted as
+    stuck, at the top of the ramp, and read k_b 13 % low (the fit took Q above 30 % of the largest,
+    top included). The slope is read up to 80 % of the largest stuck load."""
+    ks, k_b, gain, fn = 0.0327175, 0.29, 0.4, 1.1
+    inputs = identify.Inputs(spring_n_per_mm=ks, newton_per_kpa=gain)
+    records, y_prev = [], 0.0
+    for i in range(17):
+        u = 0.5 * i
+        y = ks * u / (k_b + ks) + (0.10 if i == 15 else 0.0) + (0.5 if i == 16 else 0.0)
+        records.append(identify.Record(i, "ramp", 1, fn, u, y, 0.0, y - y_prev, i == 16, onset=i == 16))
+        y_prev = y
+    row = identify.stiffness_levels(records, inputs)[0]
+    assert row["k_b"] == pytest.approx(k_b, rel=0.01)
+
+
+def test_on_a_real_time_rig_a_press_move_inside_the_window_ends_no_ramp():
+    """rig:=emulated: a press move that landed inside a period's window moved y 0.024 mm there, the
+    paper's within-period rule fired at half the friction limit and ended the 2.3 kPa ramp (mu read
+    45 % low). With slide_needs_rise (real-time rigs) only y's rise above the stuck steps ends it."""
+    ks, k_b = 0.0327175, 0.54
+    plan = identify.Plan(levels_kpa=(2.3, 1.1), step_mm=0.5, slide_rise_mm=0.08, protocols=("stiffness",),
+                         slide_needs_rise=True)
+    records: list = []
+    gen = identify.run_protocol(plan, identify.Inputs(spring_n_per_mm=ks), records)
+    cmd, k, y = next(gen), 0, 0.0
+    limit_n = 0.5 * 0.4 * 2.3                          # mu F_N
+    while True:
+        q = ks * cmd.actuator_mm * k_b / (k_b + ks)
+        slide = q > limit_n
+        y = cmd.actuator_mm - (0.1 if slide else q / ks)
+        t = np.arange(54) / 120.0 + k * 0.5
+        jump = 0.024 if k == 60 else 0.0                # a press move inside period 60's window
+        ys = np.where(t - k * 0.5 >= 0.25, y + jump, y) if not slide else np.linspace(y - 0.3, y, 54)
+        try:
+            cmd = gen.send(identify.Observation(k, cmd.normal_force_kpa, cmd.actuator_mm, (k + 1) * 0.5, t, ys))
+        except StopIteration:
+            break
+        k += 1
+    assert any(r.period == 60 and r.slid and not r.onset for r in records)   # the rule fired, the ramp went on
+    before_onset = [records[i - 1] for i, r in enumerate(records) if r.onset]
+    assert len(before_onset) == 3 and all(identify.spring_load_n(r, ks) > 0.9 * limit_n for r in before_onset[:2])

@@ -91,3 +91,24 @@ def test_the_checker_sees_a_wrong_import(tmp_path):
     bad = tmp_path / "rig.py"
     bad.write_text("def f():\n    from ..models import labels\n")
     assert "models.labels" in imports_of("sim.rig", bad)
+
+
+# inside the identify package: the protocol is the base; the window bookkeeping and the fit read
+# its records; the outputs (overlay, files) read the fit's results and draw the pictures
+IDENTIFY_ALLOWED = {
+    "identify.protocol": set(),
+    "identify.windows": {"identify.protocol"},
+    "identify.fit": {"identify.protocol"},
+    "identify.figures": {"identify.protocol", "identify.fit"},
+    "identify.overlay": {"identify.protocol", "identify.figures"},
+}
+
+
+def test_identify_modules_point_down_inside_the_package():
+    known = modules()
+    inside = {n for n in known if n.startswith("identify.")}
+    assert inside == set(IDENTIFY_ALLOWED), "a new module of identify/ needs its place in IDENTIFY_ALLOWED"
+    for name in sorted(inside):
+        targets = {_known(m, known) for m in imports_of(name, known[name])}
+        bad = {t for t in targets if t and t.startswith("identify") and t != name} - IDENTIFY_ALLOWED[name]
+        assert not bad, f"{name} imports {sorted(bad)}; inside identify/ it may import {sorted(IDENTIFY_ALLOWED[name])}"

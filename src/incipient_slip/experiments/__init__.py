@@ -31,6 +31,7 @@ EXPERIMENTS = {
     "stabilization": "incipient_slip.experiments.stabilization",
     "diagnosis": "incipient_slip.experiments.diagnosis",
     "validation": "incipient_slip.experiments.validation",
+    "identification": "incipient_slip.experiments.identification",
 }
 
 

@@ -1,16 +1,31 @@
-"""Rig identification on the simulated rig in-process, its pictures, and hidden-parameter recovery.
+"""Rig identification on the simulated rig in-process: hidden parameters recovered, and its pictures.
+
+`slip reproduce identification` draws hidden parameter sets across their plausible ranges
+(`hidden_set`), hides each in the simulated rig, runs the identification protocols in-process and
+renders truth against identified into docs/identification.md ("How close"), with the pictures of
+the first set (`identify.figures`, the ones the `identifier` node writes).
 
 `identify_sim` drives `identify.run_protocol` (the same generator the `identifier` node runs
 on rig:=sim, emulated or hardware) against `sim.Rig` directly, one `step_period` per period with
-the commanded actuator position. `hidden_set` draws parameters other
-than the defaults across their plausible ranges (the recovery tests and docs/identification.md).
+the commanded actuator position. Simulated rig, not a measurement.
 """
 from __future__ import annotations
 
+import math
+from pathlib import Path
 
 import numpy as np
 
 from incipient_slip import identify
+
+from .settings import Settings
+
+NAME = "identification"
+HELP = "rig identification on the simulated rig: hidden parameters recovered in-process"
+DOC = "identification.md"
+QUICK = "4 hidden sets (full 16)"
+RESULTS = "identification_results.json"      # in docs/figures/: the page's numbers, for --render-only
+SEED = 0
 
 MECHANICS = ("contact", "stick_slip", "mocap")
 # plausible ranges of the identified parameters (sim/params/default.yaml's sources)
@@ -65,9 +80,9 @@ def identify_sim(scene, material: str, seed: int, plan: identify.Plan | None = N
     return records, results
 
 
-def recovery_table(n_sets: int, first_seed: int = 0, material: str = "pla") -> list[dict]:
-    """Return per hidden set the truth and what the protocols identified (docs/identification.md)."""
-    import math
+def recovery_table(n_sets: int, first_seed: int = 0, material: str = "pla", figures=None) -> list[dict]:
+    """Return per hidden set the truth and what the protocols identified (docs/identification.md);
+    with `figures` (a directory) the first set's pictures go there."""
     import time
 
     rows = []
@@ -81,35 +96,44 @@ def recovery_table(n_sets: int, first_seed: int = 0, material: str = "pla") -> l
                      "beta": (hidden["pre_slip.bulk_stiffening_exponent"], st.get("beta", math.nan)),
                      "mu": (res["truth"]["mu_series"], st.get("mu", math.nan)),
                      "lag": (hidden["stick_slip.friction_limit_lag_s"], lag.get("tau_s", math.nan))})
+        if figures is not None and hs == first_seed:
+            from incipient_slip.identify.figures import figures as draw
+
+            rows[-1]["figures"] = sorted(Path(v).name for v in draw(res, records, figures, stem=NAME).values())
     return rows
 
 
-def main(argv=None) -> int:
-    """Print the hidden-parameter recovery table on the simulated rig (in-process)."""
-    import argparse
-
-    parser = argparse.ArgumentParser(
-        prog="python -m incipient_slip.experiments.identification",
-        description="Draw hidden parameters across their plausible ranges, run the identification "
-                    "protocols on the simulated rig in-process and print truth against identified "
-                    "(docs/identification.md, 'How close'). Simulated rig, not a measurement.")
-    parser.add_argument("--sets", type=int, default=16, help="hidden sets (default 16)")
-    parser.add_argument("--first-seed", type=int, default=0, help="seed of the first set (default 0)")
-    args = parser.parse_args(argv)
-    if args.sets < 1:
-        parser.error("--sets must be >= 1")
-    rows = recovery_table(args.sets, args.first_seed)
-    print("set | periods | s | k_b true -> id | beta true -> id | mu (rig's own) -> id | lag true -> id [s]")
-    for r in rows:
-        print(f"{r['set']:3d} | {r['periods']:5d} | {r['seconds']:.1f} | " + " | ".join(
-            f"{t:.3f} -> {v:.3f}" for t, v in (r["k_b"], r["beta"], r["mu"], r["lag"])))
-    err = {"k_b (relative)": max(abs(v / t - 1) for r in rows for t, v in [r["k_b"]]),
-           "beta": max(abs(v - t) for r in rows for t, v in [r["beta"]]),
-           "mu (relative)": max(abs(v / t - 1) for r in rows for t, v in [r["mu"]]),
-           "lag [s]": max(abs(v - t) for r in rows for t, v in [r["lag"]])}
-    print("largest error: " + ", ".join(f"{k} {v:.3f}" for k, v in err.items()))
-    return 0
+def largest_errors(rows: list[dict]) -> dict:
+    """The largest error over the sets: k_b and mu relative, beta and the lag (s) absolute."""
+    return {"k_b": max(abs(r["k_b"][1] / r["k_b"][0] - 1) for r in rows),
+            "beta": max(abs(r["beta"][1] - r["beta"][0]) for r in rows),
+            "mu": max(abs(r["mu"][1] / r["mu"][0] - 1) for r in rows),
+            "lag": max(abs(r["lag"][1] - r["lag"][0]) for r in rows)}
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+def add_arguments(parser) -> None:
+    parser.add_argument("--sets", type=int, help="hidden sets (default 16; quick 4)")
+
+
+def run(settings: Settings) -> dict:
+    n = settings.option("sets", settings.pick(quick=4, full=16))
+    if n < 1:
+        raise ValueError("--sets must be >= 1")
+    settings.figures.mkdir(parents=True, exist_ok=True)
+    rows = recovery_table(n, settings.seed, figures=settings.figures)
+    return {"budget": settings.budget, "sets": n, "first_seed": settings.seed, "rows": rows,
+            "largest": largest_errors(rows)}
+
+
+def render(results: dict) -> dict[str, str]:
+    """The recovery table: every hidden set's truth against what was identified, and the largest errors."""
+    big = results["largest"]
+    lines = [f"Hidden sets {results['first_seed']}..{results['first_seed'] + results['sets'] - 1} "
+             f"(`slip reproduce identification`): the largest error over the {results['sets']} sets is "
+             f"**k_b {100 * big['k_b']:.1f} %**, **beta {big['beta']:.3f}**, **mu {100 * big['mu']:.1f} %** "
+             f"of the rig's own and **lag {big['lag']:.3f} s**.", "",
+             "| set | periods | k_b true -> identified | beta | mu (rig's own) | lag [s] |", "|---|---|---|---|---|---|"]
+    for r in results["rows"]:
+        lines.append(f"| {r['set']} | {r['periods']} | " + " | ".join(
+            f"{t:.3f} -> {v:.3f}" for t, v in (r["k_b"], r["beta"], r["mu"], r["lag"])) + " |")
+    return {"identification-recovery": "\n".join(lines)}

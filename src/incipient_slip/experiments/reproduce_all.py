@@ -29,7 +29,8 @@ from .docs import write_blocks
 from .timing import duration, load_times, record_time, time_block
 
 # the order in which they run: models before stabilization and diagnosis, which load the shipped models
-ORDER = ("calibration", "models", "estimation", "accuracy-vs-time", "stabilization", "diagnosis", "validation")
+ORDER = ("calibration", "models", "estimation", "accuracy-vs-time", "stabilization", "diagnosis", "validation",
+         "identification")
 
 
 def add_all_parser(sub, run_one) -> None:

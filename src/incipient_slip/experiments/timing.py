@@ -18,7 +18,8 @@ from incipient_slip.paths import docs_dir
 TIMES_FILE = "reproduce_times.json"
 # options that change an experiment's size: a run with any of them is not the budget's time
 SIZE_OPTIONS = ("series", "runs", "steps", "max_train", "maxfev", "estimation_series", "points", "seeds",
-                "sweep_runs", "tune_k", "sweep", "joint", "model", "sweep_at", "labels", "label_methods")
+                "sweep_runs", "tune_k", "sweep", "joint", "model", "sweep_at", "labels", "label_methods",
+                "sets")
 
 
 def times_path(docs: Path | None = None) -> Path:

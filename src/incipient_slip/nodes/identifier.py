@@ -28,8 +28,6 @@ from __future__ import annotations
 import math
 import time
 
-import numpy as np
-
 from incipient_slip import identify
 from incipient_slip.errors import EXIT_FAULT
 from incipient_slip.graph.params import Param, ParamError
@@ -58,6 +56,8 @@ class Identifier(Node):
         "lag_high_kpa": Param(5.9, lo=0.1, hi=6.0, help="the lag trials' F_N before the step (kPa)"),
         "lag_low_kpa": Param(2.3, lo=0.1, hi=6.0, help="the lag trials' F_N after the step (kPa)"),
         "slide_rise_mm": Param(0.02, lo=1e-3, hi=1.0, help="a ramp slid when y rises this much above its stuck steps (mm)"),
+        "slide_needs_rise": Param(False, choices=(False, True),
+                                  help="true (real-time rigs): only that rise ends a ramp, not the paper's within-period rule"),
         "max_travel_mm": Param(48.0, lo=0.0, hi=50.0, help="the actuator never goes past this (mm)"),
         "protocols": Param("stiffness,lag,no_action", help="which protocols to run, in this order (comma-separated)"),
         "no_action_steps": Param(450, lo=1, help="steps of the no-action check (paper: 450)"),
@@ -77,7 +77,8 @@ class Identifier(Node):
         try:
             self.plan = identify.Plan(levels_kpa=tuple(float(x) for x in str(p("levels_kpa")).split(",")),
                                       step_mm=p("step_mm"), max_travel_mm=p("max_travel_mm"),
-                                      slide_rise_mm=p("slide_rise_mm"), max_rise_kpa=p("max_rise_kpa"),
+                                      slide_rise_mm=p("slide_rise_mm"), slide_needs_rise=p("slide_needs_rise"),
+                                      max_rise_kpa=p("max_rise_kpa"),
                                       lag_high_kpa=p("lag_high_kpa"), lag_low_kpa=p("lag_low_kpa"),
                                       protocols=tuple(x.strip() for x in str(p("protocols")).split(",")),
                                       no_action_steps=p("no_action_steps"))
@@ -96,16 +97,12 @@ class Identifier(Node):
         self.create_subscription(ObjectPose, self.on_pose)
         self.create_subscription(RobotState, self.on_robot)
         self.create_subscription(ActuatorState, self.on_tick)
-        self.poses: list[tuple[int, float]] = []
-        self.forces: list[tuple[int, float]] = []
-        self.ticks: dict[int, float] = {}
-        self.next_period = 0
+        self.real_time = p("clock") == "tick_start"
+        self.windows = identify.PeriodWindows(self.real_time, p("mocap_rate_hz"), p("settle_s"),
+                                              p("actuator_origin_mm"), p("max_window_retries"))
         self.last_news = time.monotonic()
         self.finished = False
         self.last_phase = ""                    # of the last command: one progress line per phase
-        self.real_time = p("clock") == "tick_start"
-        self.window_start: dict[int, int] = {}       # tick_start: period -> first stamp of its window
-        self.windows_retried = 0
         self.on_shutdown(self.finish)
         self.create_timer(0.5, self.check_liveness)
         if self.real_time:
@@ -123,12 +120,12 @@ class Identifier(Node):
         self.publish(self.command, 0)
 
     def on_pose(self, msg: ObjectPose) -> None:
-        self.poses.append((msg.stamp_ns, msg.travel_mm))
+        self.windows.pose(msg.stamp_ns, msg.travel_mm)
         self.last_news = time.monotonic()
         self.try_period()
 
     def on_robot(self, msg: RobotState) -> None:
-        self.forces.append((msg.stamp_ns, msg.normal_force_kpa))
+        self.windows.force(msg.stamp_ns, msg.normal_force_kpa)
         if (msg.protective_stop or msg.emergency_stop or msg.state == "stopped") and not self.finished:
             # a stopped robot presses nothing the protocol assumes: end, unloaded, with what was measured
             self.warn(f"the robot stopped (state {msg.state}, protective stop {msg.protective_stop}, emergency "
@@ -136,55 +133,47 @@ class Identifier(Node):
             self.shutdown("robot stopped", EXIT_FAULT)
 
     def on_tick(self, msg: ActuatorState) -> None:
-        self.ticks[msg.step_index] = msg.position_mm - self.param("actuator_origin_mm")
-        if self.real_time:
-            self.window_start[msg.step_index] = msg.stamp_ns + int(self.param("settle_s") * 1e9)
+        self.windows.tick(msg.step_index, msg.stamp_ns, msg.position_mm)
         self.last_news = time.monotonic()
         self.try_period()
 
+    @property
+    def next_period(self) -> int:
+        return self.windows.next_period
+
     def try_period(self) -> None:
-        """Answer every period whose tick and mocap are in, in order."""
-        need = 0.9 * self.param("mocap_rate_hz") * T_S
-        while self.next_period in self.ticks and not self.finished:
-            k = self.next_period
-            lo = self.window_start[k] if self.real_time else k * PERIOD_NS
-            hi = lo + PERIOD_NS
-            inside = [(s, y) for s, y in self.poses if lo <= s < hi]
-            later = any(s >= hi for s, _ in self.poses)
-            if len(inside) < need and not later:
+        """Answer every period whose window is complete (`identify.PeriodWindows`), in order."""
+        while not self.finished:
+            got = self.windows.next()
+            if got is None:
                 return
-            if len(inside) < 0.5 * need and self.real_time:
-                # a hole in the mocap stream (a loaded host, a lost marker): observe the same
-                # state over the next window instead of reading a period from a few samples
-                self.windows_retried += 1
-                if self.windows_retried > self.param("max_window_retries"):
-                    self.warn(f"period {k}: {len(inside)} mocap samples in its window, "
-                              f"{self.windows_retried - 1} windows retried; giving up")
+            if isinstance(got, identify.WindowRetry):
+                if got.give_up:
+                    self.warn(f"period {got.period}: {got.samples} mocap samples in its window, "
+                              f"{got.retried} windows retried; giving up")
                     self.shutdown("mocap missing", EXIT_FAULT)
                     return
-                self.warn(f"period {k}: only {len(inside)} mocap samples in its window; observing the "
-                          f"next {T_S:g} s instead ({self.windows_retried} retried so far)", throttle_s=1.0)
-                self.window_start[k] = hi
-                self.poses = [(s, y) for s, y in self.poses if s >= hi]
+                # a hole in the mocap stream (a loaded host, a lost marker): the same state is
+                # observed over the next window instead of reading a period from a few samples
+                self.warn(f"period {got.period}: only {got.samples} mocap samples in its window; observing the "
+                          f"next {T_S:g} s instead ({got.retried} retried so far)", throttle_s=1.0)
                 continue
-            self.poses = [(s, y) for s, y in self.poses if s >= hi]
-            force = [f for s, f in self.forces if s < hi]
-            self.forces = [(s, f) for s, f in self.forces if s >= lo]
-            t = np.array([s for s, _ in inside], float) / 1e9
-            y = np.array([v for _, v in inside], float)
-            obs = identify.Observation(k, force[-1] if force else math.nan, self.ticks.pop(k), hi / 1e9, t, y)
-            self.next_period += 1
-            try:
-                self.command = self.protocol.send(obs)
-            except StopIteration:
-                self.log(f"the protocols are done after {k + 1} periods")
-                self.shutdown("identification done")
-                return
-            except identify.IdentificationError as exc:
-                self.warn(f"period {k}: {exc}")
-                self.shutdown("bad measurement", EXIT_FAULT)
-                return
-            self.publish(self.command, k + 1 if self.real_time else k)
+            self.answer(got)
+
+    def answer(self, obs: identify.Observation) -> None:
+        """Send a period's observation to the protocol and publish its answer for the next period."""
+        k = obs.period
+        try:
+            self.command = self.protocol.send(obs)
+        except StopIteration:
+            self.log(f"the protocols are done after {k + 1} periods")
+            self.shutdown("identification done")
+            return
+        except identify.IdentificationError as exc:
+            self.warn(f"period {k}: {exc}")
+            self.shutdown("bad measurement", EXIT_FAULT)
+            return
+        self.publish(self.command, k + 1 if self.real_time else k)
 
     def publish(self, cmd: identify.Command, k: int) -> None:
         if cmd.phase != self.last_phase:       # progress: one line per phase, not per period

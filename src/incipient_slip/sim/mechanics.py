@@ -1,10 +1,10 @@
 """The rig's mechanics, compiled: contact size, pad stiffness, stick solve, creep slide, one period.
 
-Every function here is the physics itself, not a copy: `Rig.step_period` calls `period` for the
-mechanics of every period of every scene (data sets, the `rig_sim` node, the closed loop), and
-`Rig.run_mechanics` calls `run_series`, which loops `period` plus the object's travel and the
-paper's gross-slip rule over a whole series in one call (the calibration's and the validation's
-stage-1 fits, which simulate only the mechanics). The explanation of the model is in `contact`
+Every function here is the physics itself, not a copy: `period_mocap` (`period` and the period's
+mocap samples) is the mechanics stage of every period of every scene (`sim.stages`: data sets,
+the `rig_sim` node, the closed loop), and `Rig.run_mechanics` calls `run_series`, which loops the
+same `period_mocap` plus the paper's gross-slip rule over a whole series in one call (the
+calibration's and the validation's stage-1 fits, which simulate only the mechanics). The explanation of the model is in `contact`
 and `stick_slip`, which re-export the functions below under their documented names.
 
 Bit for bit: the compiled code does the arithmetic of the Python it replaced in the same order,
@@ -85,10 +85,11 @@ def warm_up() -> None:
         return
     p = np.array([_WARM_PARAMS[name] for name in PARAMS])
     s = new_state()
-    period(s, p, 3.0, 0.0, True)            # stuck
+    tt, draws = np.arange(4) / p[P_MOCAP_RATE], np.zeros(4)
+    period_mocap(s, p, 0, 3.0, 0.0, True, draws, tt, np.empty(4), np.empty(4))     # stuck
     s[ACTUATOR] = 50.0                      # far beyond the friction limit: a slide
-    period(s, p, 3.0, 0.0, True)
-    positions(s, p[P_K_SPRING], np.arange(4) / p[P_MOCAP_RATE], np.empty(4))
+    period_mocap(s, p, 1, 3.0, 0.0, True, draws, tt, np.empty(4), np.empty(4))
+    period_mocap(s, p, 2, 3.0, 0.0, False, draws, tt[:0], np.empty(0), np.empty(0))   # a scene without mocap
     _warm = True
 
 
@@ -160,6 +161,19 @@ def cattaneo_mm(q, mu_fn, dmax):
     if s <= 0.0:
         return math.copysign(dmax, q)
     return math.copysign(dmax * (1.0 - s ** (2.0 / 3.0)), q)
+
+
+@njit(cache=True)
+def load_ratio_stick(q, friction_limit_n):
+    """Return the paper's pseudo-stick ratio s = 1 - |Q| / (mu F_N), clipped to [0, 1]."""
+    return _min(1.0, _max(0.0, 1.0 - abs(q) / friction_limit_n))
+
+
+@njit(cache=True)
+def stick_area_ratio(interfacial, dmax):
+    """Return the true stick-area ratio (c/a)^2 = 1 - |delta_int| / delta_int,max (1 without an
+    interfacial range); on the monotonic Cattaneo path it equals s^(2/3)."""
+    return 1.0 - _min(1.0, abs(interfacial) / dmax) if dmax > 0 else 1.0
 
 
 @njit(cache=True)
@@ -340,7 +354,7 @@ def step_contact(s, friction_force_n, mu_s, dmax_int, k_spring, k_bulk, rate_b, 
         s[BULK] = q / k_bulk
         s[INTERFACIAL] = sign * dmax_int
         s[Y] = s[ANCHOR] + s[BULK] + s[INTERFACIAL]
-    s[SAR] = 1.0 - _min(1.0, abs(s[INTERFACIAL]) / dmax_int) if dmax_int > 0 else 1.0
+    s[SAR] = stick_area_ratio(s[INTERFACIAL], dmax_int)
     if s[SLIDING] != 0.0:
         s[SAR] = 0.0
     for i, j in enumerate((Y, ANCHOR, Q, BULK, INTERFACIAL)):
@@ -382,7 +396,7 @@ def positions(s, k_spring, t, y):
             j += 1
 
 
-# --- one period of the rig's mechanics (Rig.step_period) -----------------------------------------
+# --- one period of the rig's mechanics (sim.stages.MechanicsStage) -----------------------------------------
 
 @njit(cache=True)
 def period(s, p, normal_force_kpa, friction_draw, has_stick_slip):
@@ -417,8 +431,34 @@ def period(s, p, normal_force_kpa, friction_draw, has_stick_slip):
         if s[SLIDING] != 0.0 or not in_contact:
             s_ratio = 0.0
         else:
-            s_ratio = _min(1.0, _max(0.0, 1.0 - abs(q) / s[FRICTION_LIMIT]))   # partial_slip.load_ratio_stick
+            s_ratio = load_ratio_stick(q, s[FRICTION_LIMIT])
     return status, out_fn, in_contact, a_mm, k_bulk, sar, s_ratio, q, gross, slide_s
+
+
+@njit(cache=True)
+def period_mocap(s, p, step, normal_force_kpa, friction_draw, has_stick_slip, mocap_draws, tt, mt, my):
+    """The mechanics stage of one period (the one compiled step of `Rig.step_period` and of
+    `run_series`): `period`, then, when the scene has mocap (tt.size > 0), the period's mocap
+    samples: times mt = step T + tt and measured travel my = y(tt) + draw * noise.
+
+    Returns `period`'s tuple; mt and my are filled only when its status is 0."""
+    res = period(s, p, normal_force_kpa, friction_draw, has_stick_slip)
+    if res[0] == 0 and tt.size:
+        t0 = step * p[P_PERIOD]
+        positions(s, p[P_K_SPRING], tt, my)
+        for i in range(tt.size):
+            mt[i] = t0 + tt[i]
+            my[i] = my[i] + mocap_draws[i] * p[P_MOCAP_NOISE]
+    return res
+
+
+@njit(cache=True)
+def output_status(q, y, sar, s_ratio):
+    """0, or OUTPUT_STATUS + i for the first non-finite OUTPUT_CHECKED[i] of a period's truth."""
+    for i, v in enumerate((q, y, sar, s_ratio)):
+        if not math.isfinite(v):
+            return OUTPUT_STATUS + i
+    return 0
 
 
 # --- the paper's gross-slip rule on one period of mocap (models/labels.py) ------------------------
@@ -475,23 +515,18 @@ def run_series(s, p, first_step, forces_kpa, friction_draws, mocap_draws, actuat
     OUTPUT_STATUS + i for a non-finite OUTPUT_CHECKED[i]."""
     n_mocap = mocap_draws.shape[1]
     tt = np.arange(n_mocap) / p[P_MOCAP_RATE]
-    y_true = np.empty(n_mocap)
     mt = np.empty(n_mocap)
     my = np.empty(n_mocap)
     for k in range(forces_kpa.size):
         step = first_step + k
         actuator = s[ACTUATOR]
-        status, _, _, _, _, sar, s_ratio, q, gross, _ = period(s, p, forces_kpa[k], friction_draws[k], True)
+        status, _, _, _, _, sar, s_ratio, q, gross, _ = period_mocap(s, p, step, forces_kpa[k], friction_draws[k],
+                                                                     True, mocap_draws[k], tt, mt, my)
+        if status == 0:
+            status = output_status(q, s[Y], sar, s_ratio)
         if status != 0:
             return k, status, step
-        for i, v in enumerate((q, s[Y], sar, s_ratio)):
-            if not math.isfinite(v):
-                return k, OUTPUT_STATUS + i, step
         t0 = step * p[P_PERIOD]
-        positions(s, p[P_K_SPRING], tt, y_true)
-        for i in range(n_mocap):
-            mt[i] = t0 + tt[i]
-            my[i] = y_true[i] + mocap_draws[k, i] * p[P_MOCAP_NOISE]
         travel = period_travel_mm(mt, my, t0 + p[P_PERIOD], rule[0], rule[1], rule[2])
         row = out[k]
         row[C_Y] = s[Y]

@@ -19,19 +19,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import adc, contact, kernels, mechanics, stick_slip
-from .ambient_noise import AmbientNoise
-from .electrodes import Electrodes
+from . import contact, kernels, mechanics
 from .feasibility import material_mu
-from .fingertip_modes import ModalPath
-from .injection import PztSource
-from .mocap import mocap_samples
-from .pdc import pdc_counts
-from .sos import SosFilter, filter_pair
 from .scene import Scene, load_scene  # noqa: F401  (re-exported)
+from .stages import Contact, MechanicsStage, PacStage, SlowStage, check_truth
 from .stick_slip import ContactState, SimulationError, raise_status
-from .temperature import temperature_counts
-from .vibrotactile import bursts_pa
 
 MECHANICS = ("contact", "stick_slip", "mocap")   # the effects `run_mechanics` computes, all of them
 STREAMS = ("friction", "injection", "vibrotactile", "ambient", "electrodes", "pdc", "temperature", "mocap")
@@ -121,27 +113,30 @@ class Rig:
         kernels.warm_up()
         self.k_period = 0
         self.prev_sar = 1.0
-        has = scene.has
-        self.has_pac = has("injection") or has("vibrotactile") or has("ambient_noise")
-        self.band = PztSource(p["injection"], self.fs, self.n_pac) if has("injection") else None
-        self.modes = ModalPath(p["fingertip_modes"], self.fs) if has("fingertip_modes") else None
-        self.ambient = AmbientNoise(p["ambient_noise"], self.fs, self.n_pac) if has("ambient_noise") else None
-        self.electrodes = (Electrodes(p["electrodes"], self.rng["electrodes"], self.n_slow, self.period_s)
-                           if has("electrodes") else None)
-        self.n_slow_cols = has("electrodes") or has("pdc") or has("temperature")
-        self.pzt_on = has("injection")
+        self.pzt_on = scene.has("injection")
         self.pzt_db = scene.injection_db
+        self.last_pac_without_pzt: np.ndarray | None = None
+        self.last_sar_seen: dict[str, float] = {}
+        self._build_stages(pac_without_pzt)
+
+    def _build_stages(self, pac_without_pzt: bool) -> None:
+        """The period's stages for the scene's effects (`sim.stages`), once; the filters and
+        electrodes they own stay reachable as rig.band, rig.modes, rig.ambient, rig.electrodes."""
+        scene, p, has = self.scene, self.p, self.scene.has
+        self.has_pac = has("injection") or has("vibrotactile") or has("ambient_noise")
         if pac_without_pzt and not self.has_pac:
             raise ValueError(f"scene {scene.name!r} has no P_AC effect; pac_without_pzt needs one")
-        self.filter_without_pzt = (SosFilter(np.zeros((len(p["fingertip_modes"]["freq_hz"]), 6)))
-                                   if pac_without_pzt and self.modes is not None else None)
         self.pac_without_pzt = pac_without_pzt
-        self.last_pac_without_pzt: np.ndarray | None = None
-        # per-series constants of step_period (the effects it computes and the numbers it reads)
-        self.has_stick_slip, self.has_vibrotactile = has("stick_slip"), has("vibrotactile")
-        self.has_pdc, self.has_temperature, self.has_mocap = has("pdc"), has("temperature"), has("mocap")
-        self.pad_thickness_mm = p["fingertip_modes"]["pad_thickness_mm"] if "fingertip_modes" in p else None
-        self.mocap_tt = np.arange(self.n_mocap) / tm["mocap_rate_hz"] if self.has_mocap else None
+        mocap_tt = np.arange(self.n_mocap) / p["timing"]["mocap_rate_hz"] if has("mocap") else None
+        self.mechanics_stage = MechanicsStage(self.state, self.mech_params, self.mu_s, self.rng["friction"],
+                                        has("stick_slip"), self.rng["mocap"] if has("mocap") else None, mocap_tt)
+        self.pac_stage = (PacStage(p, has, self.fs, self.n_pac, self.rng, self.roughness, self.material_damping,
+                             pac_without_pzt) if self.has_pac else None)
+        self.slow_stage = (SlowStage(p, has, self.rng, self.n_slow, self.period_s)
+                     if has("electrodes") or has("pdc") or has("temperature") else None)
+        for name in ("band", "modes", "ambient", "filter_without_pzt"):
+            setattr(self, name, getattr(self.pac_stage, name, None))
+        self.electrodes = getattr(self.slow_stage, "electrodes", None)
 
     @property
     def friction_force_n(self) -> float | None:
@@ -161,105 +156,36 @@ class Rig:
 
     def step_period(self, normal_force_kpa: float, actuator_step: bool = True) -> PeriodOutput:
         """Return the sensor streams and truth of the next 500 ms period at normal force F_N (kPa)."""
-        k_step = self.k_period
+        k = self.k_period
         fn_kpa = float(normal_force_kpa)
         if not math.isfinite(fn_kpa) or fn_kpa < 0.0:
-            raise ValueError(f"step {k_step}: normal_force_kpa must be finite and >= 0, got {normal_force_kpa}")
-        p = self.p
-        st = self.state
-        rng = self.rng
-        status, out_fn, in_contact, a_mm, k_bulk, sar, s_ratio, q, gross, slide_s = mechanics.period(
-            st.values, self.mech_params, fn_kpa, rng["friction"].standard_normal(), self.has_stick_slip)
-        if status:
-            raise_status(status, k_step, self.friction_force_n if in_contact else 0.0,
-                         self.mu_s, k_bulk, st.values)
-        slide_t0 = st.slide_t0_s
-        t0 = k_step * self.period_s
-        bulk_mm = st.bulk_mm
-        shear_strain = bulk_mm / self.pad_thickness_mm if self.pad_thickness_mm is not None else 0.0
-        self.last_sar_seen: dict[str, float] = {}
-
+            raise ValueError(f"step {k}: normal_force_kpa must be finite and >= 0, got {normal_force_kpa}")
+        c = self.mechanics_stage(k, fn_kpa)
+        self.last_sar_seen = {}
         pac = None
-        if self.has_pac:
-            n = self.n_pac
-            if self.band is not None and self.ambient is not None and self.band.due and self.ambient.due:
-                # both noises start a block: their filters run in one loop (sos.filter_pair)
-                x, y = self.band.draw(rng["injection"]), self.ambient.draw(rng["ambient"])
-                filter_pair(self.band.filter, x, self.ambient.filter, y)
-                self.band.fill(x)
-                self.ambient.fill(y)
-            # the PZT's band noise is drawn even when it is off (the streams stay aligned)
-            unit = self.band.next(rng["injection"]) if self.band is not None else None
-            gain = p["injection"]["pa_per_unit"] * 10.0 ** (self.pzt_db / 20.0) if self.pzt_on else 0.0
-            bursts = (bursts_pa(rng["vibrotactile"], n, self.fs, p["vibrotactile"], self.prev_sar - sar,
-                                slide_s, slide_t0, self.roughness, p["injection"]["pa_per_unit"])
-                      if self.has_vibrotactile else None)
-            x = np.empty(n)
-            kernels.pac_drive(unit if self.pzt_on else None, gain, bursts, x)
-            # the PZT-absent twin (pac_without_pzt): the same sums in the same order, minus the PZT term
-            off = None
+        if self.pac_stage is not None:
+            pac, off = self.pac_stage(c, self.prev_sar, self.pzt_on, self.pzt_db, self.last_sar_seen)
             if self.pac_without_pzt:
-                off = np.empty(n)
-                kernels.pac_drive(None, 0.0, bursts, off)
-            if self.modes is not None:
-                n_split = min(n, int(math.ceil((slide_t0 + slide_s) * self.fs))) if gross else 0
-                for part, s_part in ((slice(0, n_split), 0.0), (slice(n_split, n), sar)):
-                    if part.stop > part.start:             # the twin: the same coefficients, its own state
-                        self.modes(x[part], a_mm, s_part, shear_strain, self.material_damping,
-                                   twin=None if off is None else (off[part], self.filter_without_pzt))
-                self.last_sar_seen["modes"] = self.modes.last_state[1]
-            hum = self.ambient.next(rng["ambient"]) if self.ambient is not None else None
-            ad = p["adc"]
-            pac, finite = adc.pac_to_counts_finite(x, ad["pac_pa_per_count"], ad["pac_range_pa"], hum)
-            if off is not None:
-                self.last_pac_without_pzt, finite_off = adc.pac_to_counts_finite(off, ad["pac_pa_per_count"],
-                                                                                 ad["pac_range_pa"], hum)
-                finite = finite and finite_off
-            if not finite:
-                raise SimulationError(f"step {k_step}: non-finite P_AC (F_N={fn_kpa} kPa, s={s_ratio})")
-        # slow channels share one 12-bit conversion: columns E1..E19, P_DC, T_AC, T_DC
-        elec = pdc = tac = tdc = None
-        if self.n_slow_cols:
-            slow = np.zeros((self.n_slow, 22))
-            if self.electrodes is not None:
-                stiction_mm = p["electrodes"]["core_stiction_ratio"] * out_fn / k_bulk
-                shift = self.electrodes.inner_shift(bulk_mm if in_contact else 0.0, stiction_mm)
-                self.electrodes(rng["electrodes"], self.n_slow, fn_kpa if in_contact else 0.0, a_mm, shift,
-                                out=slow[:, :19])
-            if self.has_pdc:
-                pdc_counts(rng["pdc"], self.n_slow, fn_kpa, p["pdc"], p["adc"]["pdc_pa_per_count"], out=slow[:, 19])
-            if self.has_temperature:
-                temperature_counts(rng["temperature"], self.n_slow, p["temperature"], out=(slow[:, 20], slow[:, 21]))
-            slow = adc.to_uint12(slow, int(p["adc"]["full_scale_counts"]))
-            if self.electrodes is not None:
-                elec = slow[:, :19].copy()
-            if self.has_pdc:
-                pdc = slow[:, 19].copy()
-            if self.has_temperature:
-                tac, tdc = slow[:, 20].copy(), slow[:, 21].copy()
-        mt = my = None
-        if self.has_mocap:
-            y_true = stick_slip.positions(st, self.k, self.mocap_tt)
-            mt = t0 + self.mocap_tt
-            my = mocap_samples(rng["mocap"], y_true, p["mocap"]["noise_mm"])
-
-        q = float(q)
-        y_mm = st.y_mm
-        for name, value in (("tangential_force_n", q), ("object_y_mm", y_mm), ("stick_area_ratio", sar),
-                            ("load_ratio_stick", s_ratio)):
-            if not math.isfinite(value):
-                raise SimulationError(f"step {k_step}: non-finite {name} = {value}")
-        out = PeriodOutput(
-            period_index=k_step, t_start_s=t0, pac_counts=pac, electrode_counts=elec, pdc_counts=pdc,
-            tac_counts=tac, tdc_counts=tdc, mocap_t_s=mt, mocap_y_mm=my, normal_force_kpa=fn_kpa,
-            tangential_force_n=q, actuator_mm=st.actuator_mm, object_y_mm=y_mm,
-            stick_area_ratio=sar, load_ratio_stick=s_ratio, gross_slip=gross,
-            pzt_on=self.pzt_on and self.band is not None, pzt_intensity_db=self.pzt_db)
-        self.prev_sar = sar
+                self.last_pac_without_pzt = off
+        elec, pdc, tac, tdc = self.slow_stage(c) if self.slow_stage is not None else (None,) * 4
+        st = self.state
+        check_truth(c, st.y_mm)
+        out = self._output(c, pac, elec, pdc, tac, tdc)
+        self.prev_sar = c.stick_area_ratio
         self.k_period += 1
         if actuator_step:
             st.actuator_mm += self.step_mm
         return out
+
+    def _output(self, c: Contact, pac, elec, pdc, tac, tdc) -> PeriodOutput:
+        st = self.state
+        return PeriodOutput(
+            period_index=c.period, t_start_s=c.t_start_s, pac_counts=pac, electrode_counts=elec, pdc_counts=pdc,
+            tac_counts=tac, tdc_counts=tdc, mocap_t_s=c.mocap_t_s, mocap_y_mm=c.mocap_y_mm,
+            normal_force_kpa=c.normal_force_kpa, tangential_force_n=c.tangential_force_n,
+            actuator_mm=st.actuator_mm, object_y_mm=st.y_mm, stick_area_ratio=c.stick_area_ratio,
+            load_ratio_stick=c.load_ratio_stick, gross_slip=c.gross_slip,
+            pzt_on=self.pzt_on and self.band is not None, pzt_intensity_db=self.pzt_db)
 
     def run_mechanics(self, normal_force_kpa, travel_rule: tuple[float, float, float], actuator_step: bool = True,
                       stop_travel_mm: float = math.inf) -> dict[str, np.ndarray]:
