@@ -196,8 +196,10 @@ def test_a_stalled_client_neither_blocks_the_bridge_nor_starves_another_client()
         reader.until(lambda: SlipEstimate.TOPIC in reader.topics())
         reader.subscribe([SlipEstimate.TOPIC])
         reader.until(lambda: view.forward(SlipEstimate.TOPIC, encode(estimate(0))), what="subscription active")
-        # far more than fits the stalled client's backlog and socket buffers (~1 KB each)
-        n = 20_000
+        # far more than fits the stalled client's backlog and the socket buffers of both hops, the
+        # SDK's to the subprotocol front and the front's to the client (~1 KB each; loopback buffers
+        # grow to megabytes: 19296 of 20000 fitted on a quiet machine)
+        n = 80_000
         for seq in range(1, n):
             view.forward(SlipEstimate.TOPIC, encode(estimate(seq)))
         reader.until(lambda: reader.messages and reader.messages[-1].payload["seq"] == n - 1,
