@@ -57,7 +57,7 @@ def test_collection_redraws_force_each_period_from_the_paper_grid():
 
 
 def _run(argv):
-    return main(argv, modules=("incipient_slip.sim.cli",))
+    return main(argv, modules=("incipient_slip.lab.cli",))          # registers `slip dataset`
 
 
 @pytest.mark.parametrize("argv, needle", [
