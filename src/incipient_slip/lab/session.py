@@ -166,20 +166,22 @@ def run_session(session: Session, where: str | Path, *, launch_args=(), prompt=N
     durations: list[float] = []
     material = None
     for n, entry in enumerate(todo, 1):
-        if prompt is not None:
-            change = f"put the {entry.material} object on the rail; " if entry.material != material else ""
-            prompt(f"series {entry.index} ({entry.material}, injection {'on' if entry.injection else 'off'}): "
-                   f"{change}reset the object to its start and press Enter")
-        material = entry.material
-        final = where / entry.file
-        partial = final.with_name(final.stem + ".partial.mcap")
-        t0 = time.monotonic()
-        proc = subprocess.Popen(series_command(session, entry, partial, launch_args),
-                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
-        try:
+        proc = None
+        try:                        # Ctrl-C anywhere in a series (a prompt, the launch): it stays pending
+            if prompt is not None:
+                change = f"put the {entry.material} object on the rail; " if entry.material != material else ""
+                prompt(f"series {entry.index} ({entry.material}, injection {'on' if entry.injection else 'off'}): "
+                       f"{change}reset the object to its start and press Enter")
+            material = entry.material
+            final = where / entry.file
+            partial = final.with_name(final.stem + ".partial.mcap")
+            t0 = time.monotonic()
+            proc = subprocess.Popen(series_command(session, entry, partial, launch_args),
+                                    stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
             _, err = proc.communicate()
         except KeyboardInterrupt:
-            _stop(proc)
+            if proc is not None:
+                _stop(proc)
             entry.status, entry.detail = "pending", "interrupted"
             save_manifest(session, where)
             log(f"interrupted: series {entry.index} stays pending; run the same command to resume")
