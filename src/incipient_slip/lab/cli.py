@@ -139,7 +139,8 @@ def register(subparsers) -> None:
                    "(default both: the injection method's and the vibrotactile baseline's data)")
     c.add_argument("--steps", type=int, default=450, help="periods per series (default 450, the paper's)")
     c.add_argument("--params", metavar="OVERLAY", help="an identified rig's params overlay (rig sim)")
-    c.add_argument("--speed", type=float, default=10.0, help="rig sim: x real time (default 10)")
+    c.add_argument("--speed", type=float, default=50.0, help="rig sim: x real time (default 50: 8 s a series on "
+                   "2 quiet cores; a series that loses messages on a busy machine fails and is rerun: lower it)")
     c.add_argument("--launch-arg", action="append", default=[], metavar="NAME:=VALUE",
                    help="passed to each launch (e.g. rig_config:=my_rig.yaml biotac_port:=/dev/ttyACM1)")
     c.add_argument("--no-prompt", action="store_true", help="rig hardware: do not ask before each series")

@@ -147,7 +147,14 @@ def check_recording(path: Path, steps: int) -> tuple[int, str]:
     except BagError as exc:
         return 0, exc.reason
     ticks = next((t.count for t in info.topics if t.topic == ActuatorState.TOPIC), 0)
-    return ticks, "" if ticks == steps else f"{ticks} of {steps} periods recorded"
+    if ticks != steps:
+        return ticks, f"{ticks} of {steps} periods recorded"
+    from .recordings import TOPICS        # what the import reads: a message lost there drops the series
+    lost = {t.topic: t.seq_gaps for t in info.topics if t.topic in TOPICS and t.seq_gaps}
+    if lost:
+        return ticks, "messages lost on the way to the recorder (" + ", ".join(
+            f"{n} on {topic}" for topic, n in sorted(lost.items())) + "); a busy machine: a lower --speed"
+    return ticks, ""
 
 
 def run_session(session: Session, where: str | Path, *, launch_args=(), prompt=None, log=print) -> int:
