@@ -10,6 +10,7 @@ import sys
 import pytest
 
 from incipient_slip.messages import MESSAGE_TYPES, PERIOD_NS, Heartbeat
+from timeline import assert_one_timeline  # noqa: E402
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -28,12 +29,6 @@ def test_every_topic_of_a_simulated_run_is_on_the_runs_simulated_time(graph, pro
     end_ns = (steps + 2) * PERIOD_NS
     heard = {topic for topic, msgs in probe.received.items() if msgs}
     assert {"/heartbeat", "/run/event", "/grip/command", "/slip/estimate", "/robot/state"} <= heard
-    for topic, msgs in probe.received.items():
-        streams: dict[str, list[int]] = {}
-        for m in msgs:
-            streams.setdefault(m.node if isinstance(m, Heartbeat) else "", []).append(m.stamp_ns)
-        for source, stamps in streams.items():
-            assert stamps == sorted(stamps), (topic, source, "stamps go back")
-            assert 0 < stamps[0] and stamps[-1] <= end_ns, (topic, source, stamps[0], stamps[-1], end_ns)
+    assert_one_timeline(probe.received, end_ns)
     nodes = {m.node for m in probe.received[Heartbeat.TOPIC]}
     assert {"rig_sim", "estimator", "grip_controller", "supervisor"} <= nodes, nodes

@@ -23,6 +23,7 @@ from incipient_slip.graph.bag_export import to_export_json  # noqa: E402
 from incipient_slip.graph.live_view import LiveView  # noqa: E402
 from incipient_slip.messages import MESSAGE_TYPES, SlipEstimate, encode  # noqa: E402
 from waiting import spin_until  # noqa: E402
+from timeline import assert_one_timeline  # noqa: E402
 
 PACKAGES = ["@foxglove/ws-protocol@0.8.0", "ws@8.18.3", "ajv@8.17.1"]
 SCRIPT = Path(__file__).with_name("official_client.cjs")
@@ -165,11 +166,5 @@ def test_the_official_client_receives_every_message_of_a_lock_step_run_on_one_ti
         assert times == sorted(times) and 0 < times[0] and times[-1] <= end_ns, (topic, times[:3], times[-3:])
     print(f"delivered/published to the official client: {ratios}")
     # one timeline: every topic the graph carried, per publisher, in order and within the run
-    for topic, msgs in probe.received.items():
-        streams: dict[str, list[int]] = {}
-        for m in msgs:
-            streams.setdefault(m.node if isinstance(m, Heartbeat) else "", []).append(m.stamp_ns)
-        for source, stamps in streams.items():
-            assert stamps == sorted(stamps), (topic, source, "stamps go back")
-            assert 0 < stamps[0] and stamps[-1] <= end_ns, (topic, source, stamps[0], stamps[-1], end_ns)
+    assert_one_timeline(probe.received, end_ns)
     assert {Heartbeat.TOPIC, "/run/event", "/grip/command", "/sim/truth"} <= {t for t, m in probe.received.items() if m}

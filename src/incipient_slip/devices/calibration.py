@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from incipient_slip.devices.rig_config import load_document
 from incipient_slip.errors import UsageError
 
 __all__ = ["SECTIONS", "NODE_PARAMS", "path_of", "load", "save_section", "node_values", "fit_line",
@@ -38,12 +39,7 @@ NODE_PARAMS = {"ur5": {"gain_mm_per_kpa": ("press_gain", "gain_mm_per_kpa")}}
 def path_of(rig_config: str | Path) -> Path | None:
     """The calibration file rig.yaml names (`calibration:`, relative to rig.yaml), or None."""
     rig_config = Path(rig_config)
-    try:
-        doc = yaml.safe_load(rig_config.read_text())
-    except OSError as exc:
-        raise UsageError(f"rig_config {rig_config}: cannot read it ({exc.strerror})") from None
-    except yaml.YAMLError as exc:
-        raise UsageError(f"rig_config {rig_config}: not valid YAML ({exc})") from None
+    doc = load_document(rig_config)
     name = doc.get("calibration") if isinstance(doc, dict) else None
     if name is None:
         return None

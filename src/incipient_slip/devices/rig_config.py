@@ -13,18 +13,24 @@ import yaml
 
 from incipient_slip.errors import UsageError
 
-__all__ = ["load_section"]
+__all__ = ["load_document", "load_section"]
+
+
+def load_document(path: str | Path):
+    """The parsed YAML of the rig file `path`; UsageError naming what is wrong."""
+    path = Path(path)
+    try:
+        return yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise UsageError(f"rig_config {path}: cannot read it ({exc.strerror})") from None
+    except yaml.YAMLError as exc:
+        raise UsageError(f"rig_config {path}: not valid YAML ({exc})") from None
 
 
 def load_section(path: str | Path, section: str) -> dict:
     """The mapping under `section` in the YAML file `path`; UsageError naming what is wrong."""
     path = Path(path)
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise UsageError(f"rig_config {path}: cannot read it ({exc.strerror})") from None
-    except yaml.YAMLError as exc:
-        raise UsageError(f"rig_config {path}: not valid YAML ({exc})") from None
+    doc = load_document(path)
     if not isinstance(doc, dict) or section not in doc:
         have = ", ".join(map(str, doc)) if isinstance(doc, dict) else "(not a mapping)"
         raise UsageError(f"rig_config {path}: no section {section!r} (sections: {have})")
