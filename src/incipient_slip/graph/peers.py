@@ -146,6 +146,15 @@ class Peers:
         topology; empty for a node started by hand)."""
         return self._readers
 
+    def wait_before_first(self, pub, by_hand: int, timeout_s: float = READY_TIMEOUT_S) -> None:
+        """Before a message that must not be lost: the readers this launch names
+        (`wait_for_readers`) or, started by hand, `by_hand` subscribers of `pub`; a warning, and
+        on, when they do not come."""
+        if self.readers:
+            self.wait_for_readers(timeout_s)
+        elif not pub.wait_for_subscribers(by_hand, timeout_s):
+            self.warn(f"too few readers of {pub.topic}; sending anyway")
+
     def wait_for_readers(self, timeout_s: float = READY_TIMEOUT_S) -> bool:
         """True once every node of this launch that reads one of this node's outputs has
         subscribed here (its hello arrived, so its subscriptions are in place); at once when there

@@ -60,7 +60,6 @@ class SeriesNotes:
     mocap_invalid: int = 0            # pose samples marked not tracked, left out
     periods: int = 0
     gross_slip: bool = True           # the paper's rule flags a period: pseudo labels exist
-    messages: dict = field(default_factory=dict)
 
 
 def read_metadata(path: str | Path) -> dict:
@@ -141,7 +140,7 @@ def read_series(path: str | Path, *, spring_n_per_mm: float | None = None,
     path = Path(path)
     meta = read_metadata(path)
     got = _by_topic(path)
-    notes = SeriesNotes(messages={t: len(v) for t, v in got.items() if v})
+    notes = SeriesNotes()
     missing = [t for t in REQUIRED if not got[t]]
     if missing:
         raise RecordingError(path, f"no messages on {', '.join(missing)} (a collection recording holds the "

@@ -44,10 +44,7 @@ class ForceSchedule(Node):
             self.warn(f"tick {k} after {self.last}: not answered again", throttle_s=1.0)
             return
         if self.last < 0:                        # once: the first answer must not be lost
-            if self.readers:                     # the launch names them
-                self.wait_for_readers(self.param("wait_timeout_s"))
-            elif not self.pub.wait_for_subscribers(self.param("wait_subscribers"), self.param("wait_timeout_s")):
-                self.warn(f"too few readers of {self.pub.topic}; sending anyway")
+            self.wait_before_first(self.pub, self.param("wait_subscribers"), self.param("wait_timeout_s"))
         self.last = k
         nxt = self.forces[min(k + 1, len(self.forces) - 1)]
         self.pub.publish(GripCommand(normal_force_kpa=nxt, period=k, reason="collection schedule"))

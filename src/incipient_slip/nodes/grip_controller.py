@@ -93,10 +93,7 @@ class GripController(Node):
                       f"{self.core.refused_ticks} ticks refused so far)", throttle_s=1.0)
         if answers and not self.readers_ready:   # once: period 0's answer must not be lost
             self.readers_ready = True
-            if self.readers:                     # the launch names them
-                self.wait_for_readers(self.param("wait_timeout_s"))
-            elif not self.command_pub.wait_for_subscribers(self.param("wait_subscribers"), self.param("wait_timeout_s")):
-                self.warn(f"too few readers of {self.command_pub.topic}; sending anyway")
+            self.wait_before_first(self.command_pub, self.param("wait_subscribers"), self.param("wait_timeout_s"))
         for a in answers:
             self.command_pub.publish(GripCommand(normal_force_kpa=a.normal_force_kpa, hold=a.hold,
                                                  period=a.period, reason=a.reason, stamp_ns=self.input_ns))
