@@ -19,6 +19,7 @@ import signal
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -183,8 +184,9 @@ def run_session(session: Session, where: str | Path, *, launch_args=(), prompt=N
             final = where / entry.file
             partial = final.with_name(final.stem + ".partial.mcap")
             t0 = time.monotonic()
-            proc = subprocess.Popen(series_command(session, entry, partial, launch_args),
-                                    stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+            with _sigint_deferred():    # a Ctrl-C inside Popen would orphan a launch we cannot stop
+                proc = subprocess.Popen(series_command(session, entry, partial, launch_args),
+                                        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
             _, err = proc.communicate()
         except KeyboardInterrupt:
             if proc is not None:
@@ -212,6 +214,25 @@ def run_session(session: Session, where: str | Path, *, launch_args=(), prompt=N
             f"{'on' if entry.injection else 'off'}: {entry.status} in {entry.seconds:.1f} s"
             + (f" ({entry.detail})" if entry.status != "done" else f" ({periods} periods)") + eta)
     return sum(s.status == "done" for s in session.series)
+
+
+@contextmanager
+def _sigint_deferred():
+    """Holds a SIGINT that comes inside the block and raises it (KeyboardInterrupt) at its end.
+
+    Popen forks before it returns: a KeyboardInterrupt raised in between leaves the series' launch
+    running with no handle to stop it (the rerun then shared the graph with it: 240 of 120 ticks)."""
+    if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        yield                      # someone else owns SIGINT (not the main thread's default)
+        return
+    came: list[int] = []
+    signal.signal(signal.SIGINT, lambda signum, frame: came.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    if came:
+        raise KeyboardInterrupt
 
 
 def _stop(proc: subprocess.Popen) -> None:
