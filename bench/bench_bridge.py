@@ -62,7 +62,7 @@ def period_bodies(n_periods: int) -> list[list[tuple[str, bytes]]]:
         for j, stamp in enumerate(pac_frame_stamps_ns(k).tolist()):
             bodies.append(("/biotac/pac", encode(BiotacPac(pac_counts=frames[j], stamp_ns=stamp, seq=seq))))
             seq += 1
-        bodies.append(("/actuator/state", encode(ActuatorState(step_index=k, stamp_ns=(k + 1) * PERIOD_NS, seq=k))))
+        bodies.append(("/actuator/state", encode(ActuatorState(period=k, stamp_ns=(k + 1) * PERIOD_NS, seq=k))))
         if k == 0:
             bodies.append(("/pzt/state", encode(PztState(enabled=True, stamp_ns=1, seq=0))))
         periods.append(bodies)

@@ -7,7 +7,7 @@ real time (`rig:=sim lockstep:=false`: rig_sim publishes each message when its s
 once with `rig:=emulated` (every device node against the emulators), with a recorder in the same
 graph. Per period k, from the recorder's receive times (one clock):
 
-* decision = GripCommand(period=k) - ActuatorState(step_index=k), both as the recorder receives
+* decision = GripCommand(period=k) - ActuatorState(period=k), both as the recorder receives
   them: from the period's tick to the grip controller's answer. The simulated rig releases the
   tick at its stamp, right after the period's last P_AC frame. On the emulated rig the estimator
   cuts periods at tick 0's time + k periods (`period_origin:=tick`) and the stage's move is
@@ -75,7 +75,7 @@ def run(rig: str, steps: int, seed: int, work: Path) -> dict[str, list[float]]:
     for record in read_bag(bag):
         msg = decode_any(record.body, record.topic)
         if record.topic == "/actuator/state":
-            tick.setdefault(msg.step_index, record.log_time_ns)
+            tick.setdefault(msg.period, record.log_time_ns)
         elif record.topic == "/grip/command":
             command.setdefault(msg.period, record.log_time_ns)
         elif record.topic == "/robot/state" and msg.period >= 0:

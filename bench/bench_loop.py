@@ -86,7 +86,7 @@ class BenchRig(Node):
         last = BiotacPac(pac_counts=frames[-1], stamp_ns=stamps[-1])
         self.sent_ns[k] = time.monotonic_ns()
         self.pac_pub.publish(last)
-        self.tick_pub.publish(ActuatorState(step_index=k, stamp_ns=(k + 1) * PERIOD_NS))
+        self.tick_pub.publish(ActuatorState(period=k, stamp_ns=(k + 1) * PERIOD_NS))
 
     def spin_for(self, seconds: float):
         end = time.monotonic() + seconds
@@ -123,10 +123,10 @@ def stage_costs_ns(model, pac: np.ndarray, repeats: int = 200) -> dict:
         t1 = time.perf_counter_ns()
         s = float(model.predict(f)[0])
         t2 = time.perf_counter_ns()
-        problem = control.estimate_problem(s, True, method="injection", expected_method="injection")
+        problem = control.problem_of(s, True, method="injection", expected_method="injection")
         d = control.next_force(2.9, s, law, problem)
         encode(GripCommand(normal_force_kpa=d.normal_force_kpa, hold=d.hold, period=r, reason=d.reason,
-                           stamp_ns=1, seq=r))
+                           cause=d.cause, stamp_ns=1, seq=r))
         t3 = time.perf_counter_ns()
         t_phi.append(t1 - t0)
         t_pred.append(t2 - t1)

@@ -71,7 +71,7 @@ def test_channels_are_msgpack_with_a_json_schema_per_type(tmp_path):
     assert doc == json.loads(json.dumps(json_schema(BiotacPac)))
     assert doc["properties"]["pac_counts"]["properties"]["dtype"] == {"const": "<i2"}
     assert doc["x-incipient-slip"] == BiotacPac.schema()
-    assert by_topic["/slip/estimate"].metadata == {"type": "SlipEstimate", "version": "1"}
+    assert by_topic["/slip/estimate"].metadata == {"type": "SlipEstimate", "version": "2"}
 
 
 @pytest.mark.timeout(10)

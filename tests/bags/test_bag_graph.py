@@ -169,3 +169,16 @@ def test_recorder_killed_with_sigkill_loses_at_most_its_last_flush_interval(grap
     assert n <= len(seqs) <= sent
     assert f"recovered {len(seqs)} messages" in run.stdout and "UNFINISHED" in run.stdout
     assert_every_channel_has_a_schema(recovered)
+
+
+@pytest.mark.timeout(60)
+def test_an_old_recording_replays_as_the_current_schema(graph, tmp_path):
+    """tests/data/demo_v1.mcap is demo.mcap as make_demo_mcap.py wrote it before ActuatorState v2
+    (`step_index`, now `period`): replayed, the graph gets the current version (its nodes speak
+    only that), so recording the replay gives today's demo.mcap, body for body."""
+    old = HERE.parent / "data" / "demo_v1.mcap"
+    assert any(b'step_index' in r.body for r in read_bag(old))
+    out = tmp_path / "again.mcap"
+    run = launch(graph, "replay_record.yaml", bag=old, out=out, count=bag_info(old).message_count)
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert content(out) == content(DEMO)

@@ -55,7 +55,7 @@ def messages(seed: int = 0):
                                 orientation_xyzw=[0.0, 0.0, 0.0, 1.0], stamp_ns=stamp, seq=i)
     for k in range(int(DURATION_S / PERIOD_S)):
         stamp = round((k + 1) * PERIOD_S * 1e9)
-        yield stamp, ActuatorState(position_mm=(k + 1) * 23.0 / 450, step_index=k + 1,
+        yield stamp, ActuatorState(position_mm=(k + 1) * 23.0 / 450, period=k + 1,
                                    stamp_ns=stamp, seq=k)
         yield stamp, PztState(enabled=True, intensity_db=0.0, stamp_ns=stamp, seq=k)
 

@@ -62,7 +62,7 @@ def test_homes_then_steps_to_each_target_and_publishes_the_tick(rig):
     emulator, node, probe = rig()
     assert "home" in emulator.commands
     run((node, probe), lambda: len(probe.states) == 5)
-    assert [s.step_index for s in probe.states] == [0, 1, 2, 3, 4]
+    assert [s.period for s in probe.states] == [0, 1, 2, 3, 4]
     for k, state in enumerate(probe.states):
         assert state.position_mm == pytest.approx(2.0 + (k + 1) * 0.2, abs=1e-4)
     assert node.done and emulator.position_mm == pytest.approx(3.0, abs=1e-4)
@@ -84,7 +84,7 @@ def test_stall_mid_run_stops_the_stage_and_exits_3(rig):
     emulator.stall_at(2.5)
     run((node, probe), lambda: node.stopping)
     assert node.exit_code == 3 and node.failed
-    assert [s.step_index for s in probe.states] == [0, 1]
+    assert [s.period for s in probe.states] == [0, 1]
     assert emulator.commands[-1] == "stop"
 
 
@@ -153,7 +153,7 @@ def test_wait_tare_holds_step_0_until_the_biotac_reader_is_tared(rig):
     assert node.k == 0 and probe.states == []
     probe.biotac.publish(BiotacStatus(tare_state="done"))
     run((node, probe), lambda: len(probe.states) == 5)
-    assert [s.step_index for s in probe.states] == [0, 1, 2, 3, 4]
+    assert [s.period for s in probe.states] == [0, 1, 2, 3, 4]
 
 
 def test_commanded_mode_goes_where_each_command_says_and_ticks_with_its_period(rig):
@@ -162,7 +162,7 @@ def test_commanded_mode_goes_where_each_command_says_and_ticks_with_its_period(r
     for k, position in enumerate((1.5, 0.25, 3.0)):
         probe.actuator.publish(ActuatorCommand(position_mm=position, period=k))
         run((node, probe), lambda: len(probe.states) == k + 1)
-        assert probe.states[-1].step_index == k
+        assert probe.states[-1].period == k
         assert probe.states[-1].position_mm == pytest.approx(2.0 + position, abs=1e-4)   # from start_mm
     # an older or repeated period is refused and counted; a target past the limit is clamped
     probe.actuator.publish(ActuatorCommand(position_mm=4.0, period=1))

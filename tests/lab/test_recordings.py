@@ -277,3 +277,31 @@ def test_a_late_period_is_not_a_clock_fault(recording):
     back = lambda rec, i: rec.stamp_ns - (900_000_000 if rec.topic == ActuatorState.TOPIC and i >= 6 else 0)
     with pytest.raises(RecordingError, match="clock went back on /actuator/state"):
         read_series(copy_recording(recording, recording.parent / "back.mcap", stamp=back))
+
+
+def as_written_before_v2(body: bytes) -> bytes:
+    """A body as the build before ActuatorState v2, SlipEstimate v2 and GripCommand v2 wrote it
+    (`step_index`, no `cause`)."""
+    import msgpack
+    obj = msgpack.unpackb(body)
+    if obj["type"] == "ActuatorState":
+        obj = {("step_index" if k == "period" else k): v for k, v in obj.items()}
+    elif obj["type"] in ("SlipEstimate", "GripCommand"):
+        obj.pop("cause")
+    else:
+        return body
+    return msgpack.packb({**obj, "v": 1})
+
+
+def test_a_recording_of_the_older_schema_imports_as_today(recording, tmp_path):
+    old = tmp_path / "old.mcap"
+    from incipient_slip.lab.recordings import read_metadata
+    w = BagWriter(old, metadata=read_metadata(recording))
+    for rec in read_bag(recording):
+        w.write_body(rec.topic, rec.type_name, as_written_before_v2(rec.body), log_time_ns=rec.log_time_ns,
+                     stamp_ns=rec.stamp_ns, seq=rec.sequence)
+    w.close()
+    assert any(b"step_index" in rec.body for rec in read_bag(old, [ActuatorState.TOPIC]))
+    (now, _), (before, _) = read_series(recording), read_series(old)
+    assert sorted(now) == sorted(before)
+    assert all(np.array_equal(now[key], before[key], equal_nan=np.asarray(now[key]).dtype.kind == "f") for key in now)

@@ -94,9 +94,9 @@ def test_largest_uint64_stamp_and_seq_round_trip():
 
 
 @pytest.mark.parametrize("cls, name, value", [
-    (M.ActuatorState, "step_index", 1 << 63),          # the supervisor's "9223372036854775809 steps"
-    (M.ActuatorState, "step_index", 1 << 32),
-    (M.ActuatorState, "step_index", -1),
+    (M.ActuatorState, "period", 1 << 63),          # the supervisor's "9223372036854775809 steps"
+    (M.ActuatorState, "period", 1 << 32),
+    (M.ActuatorState, "period", -1),
     (M.GripCommand, "period", 1 << 63),
     (M.GripCommand, "period", -2),
     (M.RunEvent, "step", 1 << 32),
@@ -105,7 +105,7 @@ def test_largest_uint64_stamp_and_seq_round_trip():
     (M.BiotacPac, "stamp_ns", -1),
     (M.BiotacPac, "seq", True),                         # a bool is not an int
     (M.ActuatorState, "busy", 1),                       # nor an int a bool
-    (M.ActuatorState, "step_index", 3.0),
+    (M.ActuatorState, "period", 3.0),
     (M.BiotacPac, "pa_per_count", float("nan")),
     (M.BiotacPac, "pa_per_count", float("inf")),
     (M.GripCommand, "normal_force_kpa", 100.5),
@@ -125,7 +125,7 @@ def test_out_of_contract_scalar_is_refused_on_decode_and_construction(cls, name,
 
 
 def test_widths_hold_at_their_edges():
-    edge = M.ActuatorState(step_index=INT_RANGES["uint32"][1])
+    edge = M.ActuatorState(period=INT_RANGES["uint32"][1])
     assert M.decode(M.encode(edge), M.ActuatorState) == edge
     assert M.decode(M.encode(M.GripCommand(period=-1)), M.GripCommand).period == -1
     assert M.decode(M.encode(M.SlipEstimate()), M.SlipEstimate).stick_ratio != 0.0  # NaN travels

@@ -47,7 +47,7 @@ def test_schema_accepts_every_body_the_decoder_accepts(msg, data):
 
 
 @pytest.mark.parametrize("cls, name, value", [
-    (M.ActuatorState, "step_index", 1 << 32),
+    (M.ActuatorState, "period", 1 << 32),
     (M.GripCommand, "period", -2),
     (M.GripCommand, "normal_force_kpa", 100.5),
     (M.BiotacSlow, "pdc_counts", 4096),

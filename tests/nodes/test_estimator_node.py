@@ -240,7 +240,7 @@ def test_period_origin_tick_cuts_host_time_stamps_at_the_actuators_ticks(estimat
     for _ in range(25):
         node.spin_once(0.01)
     assert node.estimates == []                      # no period before the origin is known
-    node.tick.publish(ActuatorState(step_index=0, stamp_ns=host + PERIOD_NS))
+    node.tick.publish(ActuatorState(period=0, stamp_ns=host + PERIOD_NS))
     node.send_pac(stream, range(120, 400), stamp_of=lambda j: host + int(pac_frame_stamps_ns(j // 50)[j % 50]))
     node.spin_until(lambda: len(node.estimates) >= 7)
     est = node.estimates

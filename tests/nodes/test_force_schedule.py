@@ -16,7 +16,7 @@ def test_each_tick_asks_for_the_next_periods_draw_once(graph, probe):
     tick = probe.node.create_publisher(ActuatorState)
     probe.until(lambda: tick.wait_for_subscribers(1, 0.05), 30, procs=[proc], what="force_schedule subscribed")
     for k in [0, 1, 1, 2, 3, 4, 5]:                  # a repeated tick is not answered twice
-        tick.publish(ActuatorState(position_mm=0.1 * k, step_index=k, stamp_ns=(k + 1) * 500_000_000))
+        tick.publish(ActuatorState(position_mm=0.1 * k, period=k, stamp_ns=(k + 1) * 500_000_000))
     probe.until(lambda: len(commands) >= STEPS, 30, procs=[proc], what=f"{STEPS} commands")
     draws = collection_forces_kpa(11, STEPS)
     assert [c.period for c in commands] == list(range(STEPS))

@@ -38,7 +38,7 @@ class Controller(Node):
     def on_tick(self, msg):
         self.got[ActuatorState].append(msg)
         if self.answer is not None:
-            self.answer(self, msg.step_index)
+            self.answer(self, msg.period)
 
     def ticks(self):
         return len(self.got[ActuatorState])
@@ -134,7 +134,7 @@ def test_node_and_in_process_loop_give_identical_data_for_the_same_seed(graph):
     assert [m.period for m in ctl.got[RobotState]] == [-1] + list(range(steps - 1))
     assert outs[8].normal_force_kpa == outs[7].normal_force_kpa          # the hold
     ticks = ctl.got[ActuatorState]
-    assert [m.step_index for m in ticks] == list(range(steps))
+    assert [m.period for m in ticks] == list(range(steps))
     # the stage after the period's step (as the Zaber node reads it back): where the next period runs
     assert [m.position_mm for m in ticks][:-1] == [o.actuator_mm for o in outs[1:]]
     assert ticks[-1].position_mm > outs[-1].actuator_mm

@@ -1,6 +1,7 @@
 """Every import inside the package points down the layers (docs/design.md), checked by parsing.
 
-experiments -> nodes -> identify -> graph / models / sim / control -> messages; `models/` never reads the
+experiments -> nodes -> identify -> graph / models / sim / control (a package: law, answerer, judge,
+closers, clock) -> messages; `models/` never reads the
 simulator and `sim/` never imports learning or control. `cluster` (dask tasks) sits below sim,
 models and experiments and imports only the leaves. Imports inside functions count too.
 """
@@ -112,3 +113,25 @@ def test_identify_modules_point_down_inside_the_package():
         targets = {_known(m, known) for m in imports_of(name, known[name])}
         bad = {t for t in targets if t and t.startswith("identify") and t != name} - IDENTIFY_ALLOWED[name]
         assert not bad, f"{name} imports {sorted(bad)}; inside identify/ it may import {sorted(IDENTIFY_ALLOWED[name])}"
+
+
+# inside the control package: the law and the period clock are the base; the answerer returns the
+# law's decisions as wire commands; the judge asks the period closers (one per mode) when a period
+# is closed
+CONTROL_ALLOWED = {
+    "control.law": set(),
+    "control.clock": set(),
+    "control.closers": set(),
+    "control.answerer": {"control.law"},
+    "control.judge": {"control.law", "control.closers"},
+}
+
+
+def test_control_modules_point_down_inside_the_package():
+    known = modules()
+    inside = {n for n in known if n.startswith("control.")}
+    assert inside == set(CONTROL_ALLOWED), "a new module of control/ needs its place in CONTROL_ALLOWED"
+    for name in sorted(inside):
+        targets = {_known(m, known) for m in imports_of(name, known[name])}
+        bad = {t for t in targets if t and t.startswith("control") and t != name} - CONTROL_ALLOWED[name]
+        assert not bad, f"{name} imports {sorted(bad)}; inside control/ it may import {sorted(CONTROL_ALLOWED[name])}"

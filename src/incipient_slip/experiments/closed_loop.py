@@ -79,7 +79,8 @@ def run_loop(rig, estimate: Estimate | None, params: control.ControlParams = con
             s, hold = math.nan, False
         else:
             s = float(estimate(prev, out))
-            decision = control.next_force(force, s, params, problem="" if math.isfinite(s) else "filling")
+            decision = control.next_force(force, s, params, problem=control.Problem()
+                                          if math.isfinite(s) else control.Problem("estimate_invalid", "filling"))
             force, hold = decision.normal_force_kpa, decision.hold
             holds = holds + 1 if hold else 0
         prev = out

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from io import BytesIO
 from typing import IO, Callable, Iterable, Iterator
 
-from incipient_slip.messages import MESSAGE_TYPES, Message, MessageError, decode_any, encode
+from incipient_slip.messages import MESSAGE_TYPES, Message, MessageError, decode_recorded, encode
 from incipient_slip.messages.schema import json_schema  # derived from the field declarations
 
 __all__ = ["BagError", "BagRecord", "BagWriter", "TopicInfo", "BagInfo", "Damage", "Recovery",
@@ -60,8 +60,9 @@ class BagRecord:
     sequence: int           # the message's seq modulo 2**32
 
     def message(self) -> Message:
-        """The decoded, validated message (MessageError if the body breaks the contract)."""
-        return decode_any(self.body, self.topic)
+        """The decoded, validated message (MessageError if the body breaks the contract); a body
+        of an older schema version reads as the current one (messages.history)."""
+        return decode_recorded(self.body, self.topic)
 
 
 # --- writing -------------------------------------------------------------------------------
@@ -486,7 +487,7 @@ class Recovery:
 
     def copy(self, out: BagWriter, rec: BagRecord) -> None:
         try:
-            decode_any(rec.body, rec.topic)
+            decode_recorded(rec.body, rec.topic)
         except MessageError:
             self.malformed += 1
             return

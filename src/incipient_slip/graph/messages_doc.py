@@ -86,7 +86,7 @@ def _topics() -> list[str]:
 
 def _example() -> str:
     """A worked example: one message, its two frames in hex and the map the body holds."""
-    msg = ActuatorState(position_mm=1.5, step_index=3, stamp_ns=1_700_000_000_000_000_000, seq=7)
+    msg = ActuatorState(position_mm=1.5, period=3, stamp_ns=1_700_000_000_000_000_000, seq=7)
     body = encode(msg)
     hexed = body.hex(" ")
     rows = "\n".join(hexed[i:i + 96].strip() for i in range(0, len(hexed), 96))

@@ -18,7 +18,7 @@ import sys
 import time
 from pathlib import Path
 
-from incipient_slip.messages import Message, MessageError, decode_any
+from incipient_slip.messages import Message, MessageError, current_body
 from incipient_slip.graph.bag import BagError, bag_info, read_bag
 from incipient_slip.graph.params import ParamError
 from incipient_slip.graph.runtime import ANY_TOPIC, POLL_S, Node, run_node
@@ -111,12 +111,14 @@ class Replay(Node):
                 if self.stopping:
                     return
                 try:
-                    decode_any(rec.body, rec.topic)   # never put a malformed body on the wire
+                    # never put a malformed body on the wire; an older schema version goes out
+                    # as the current one (the graph's nodes speak only that)
+                    body = current_body(rec.body, rec.topic)
                 except MessageError as exc:
                     self.skipped += 1
                     self.warn(throttle_s=1.0, key=("replay-bad", rec.topic), text=f"{self.path}: skipped {exc}")
                     continue
-                self.pubs[rec.topic].publish_raw(rec.body)
+                self.pubs[rec.topic].publish_raw(body)
                 self.published += 1
                 bar.update()
         finally:

@@ -5,7 +5,7 @@ series' arrays; nothing the simulator alone knows is needed:
 
 * the streams as recorded: P_AC frames, the slow channels (electrodes, P_DC, temperatures), the
   object's mocap travel; cut to start at period 0's start, the time origin (t = 0 s);
-* the periods from the actuator's ticks: `ActuatorState(step_index=k)` is stamped at the end of
+* the periods from the actuator's ticks: `ActuatorState(period=k)` is stamped at the end of
   period k and says where the stage stands after the period's step, so the stage during period k is
   tick k-1 (period 0: one step before tick 0; the paper's steps are equal);
 * F_N per period: the robot's applied force (`RobotState`, the mean of those stamped in the
@@ -146,7 +146,7 @@ def read_series(path: str | Path, *, spring_n_per_mm: float | None = None,
         raise RecordingError(path, f"no messages on {', '.join(missing)} (a collection recording holds the "
                                    "BioTac slow channels, the object's pose and the actuator's ticks)")
     ticks = got[ActuatorState.TOPIC]
-    if [m.step_index for m in ticks] != list(range(len(ticks))):
+    if [m.period for m in ticks] != list(range(len(ticks))):
         raise RecordingError(path, "the actuator's ticks are not periods 0, 1, 2, ... in order")
     if len(ticks) < MIN_PERIODS:
         raise RecordingError(path, f"only {len(ticks)} period(s) recorded (at least {MIN_PERIODS})")

@@ -31,6 +31,19 @@ BIOTAC_ERROR_WORDS = ("parity_error", "unknown_command", "insufficient_delay", "
                       "channel_not_recognized", "nothing_to_resend", "read_only", "write_error")
 BIOTAC_LINK_STATES = ("disconnected", "handshake", "no_sensor", "streaming")
 TARE_STATES = ("none", "collecting", "done", "refused")
+# Why an estimate is what it is (SlipEstimate.cause; the reason field says it in words):
+# ok; filling (the window is not full yet: the start of every run, and after a reset); seq_gap
+# (messages were lost: the window was emptied); stale (no frame for too long, or a stamp jump);
+# backwards (the source's stamps went back: it restarted); no_data (no frame yet); pzt_mismatch
+# (the PZT state contradicts the model); unknown (a publisher that names none).
+ESTIMATE_CAUSES = ("ok", "filling", "seq_gap", "stale", "backwards", "no_data", "pzt_mismatch", "unknown")
+# Why a grip command asks for its force (GripCommand.cause; the reason field says it in words):
+# law (the grip law on a usable estimate); no_action (method none); schedule (a planned force:
+# collection, identification); stale_estimate (a hold: no estimate in time); estimate_invalid,
+# estimate_not_finite, estimate_out_of_range, estimate_other_period, estimate_other_method (a
+# hold: the estimate of the period could not drive the force); unknown (a publisher that names none).
+GRIP_CAUSES = ("law", "no_action", "schedule", "stale_estimate", "estimate_invalid", "estimate_not_finite",
+               "estimate_out_of_range", "estimate_other_period", "estimate_other_method", "unknown")
 
 
 def _counts(n: int, note: str):
@@ -167,22 +180,26 @@ class ActuatorCommand(Message):
 @dataclass(frozen=True, eq=False)
 class ActuatorState(Message):
     TOPIC: ClassVar[str] = "/actuator/state"
-    DESCRIPTION: ClassVar[str] = "Linear actuator position and step index (one step per period)"
+    SCHEMA_VERSION: ClassVar[int] = 2      # 2: step_index renamed period (one name for the period index)
+    DESCRIPTION: ClassVar[str] = ("Linear actuator position and the period it just ended (one step per "
+                                  "period: the tick the grip controller answers)")
     position_mm: float = real(0.0, unit="mm")
-    step_index: int = integer("uint32")
+    period: int = integer("uint32")
     busy: bool = flag(False)
 
 
 @dataclass(frozen=True, eq=False)
 class GripCommand(Message):
     TOPIC: ClassVar[str] = "/grip/command"
+    SCHEMA_VERSION: ClassVar[int] = 2      # 2: cause, the closed set GRIP_CAUSES beside the reason
     DESCRIPTION: ClassVar[str] = ("Normal force target for the robot; hold=True means keep the "
                                   "last safe force (stale/invalid estimate)")
     normal_force_kpa: float = real(0.0, unit="kPa", low=0.0, high=100.0,
                                    note="P_DC range; the applying node clamps to its safety limit")
     hold: bool = flag(False)
     period: int = integer("int64", -1, low=-1, high=STEP_LIMIT, note=_NO_PERIOD)
-    reason: str = text("")
+    reason: str = text("", note="for people; code switches on cause")
+    cause: str = text("unknown", choices=GRIP_CAUSES)
 
 
 @dataclass(frozen=True, eq=False)
@@ -211,6 +228,7 @@ class RobotRecover(Message):
 @dataclass(frozen=True, eq=False)
 class SlipEstimate(Message):
     TOPIC: ClassVar[str] = "/slip/estimate"
+    SCHEMA_VERSION: ClassVar[int] = 2      # 2: cause, the closed set ESTIMATE_CAUSES beside the reason
     DESCRIPTION: ClassVar[str] = ("Estimated stick ratio of one window; valid=False after a seq "
                                   "gap or stale stream, with the reason")
     stick_ratio: float = real(float("nan"), nan=True,
@@ -220,7 +238,8 @@ class SlipEstimate(Message):
     window_end_ns: int = integer("uint64", unit="ns")
     latency_ns: int = integer("uint64", unit="ns")
     period: int = integer("int64", -1, low=-1, high=STEP_LIMIT, note=_NO_PERIOD)
-    reason: str = text("")
+    reason: str = text("", note="for people; code switches on cause")
+    cause: str = text("unknown", choices=ESTIMATE_CAUSES)
 
 
 @dataclass(frozen=True, eq=False)

@@ -44,6 +44,9 @@ MAX_CATCH_UP = 20          # boundaries estimated at once after a hole; beyond i
 _MAX_REL_NS = 1 << 62      # buffer stamps are int64 offsets from the buffer's first frame
 OK, FILLING, SEQ_GAP, STALE, BACKWARDS, NO_DATA = (
     "ok", "filling", "seq gap", "stale", "stamp went backwards", "no data")
+# each of the stream's reasons as the closed set the wire carries (messages.ESTIMATE_CAUSES)
+CAUSE_OF_REASON = {OK: "ok", FILLING: "filling", SEQ_GAP: "seq_gap", STALE: "stale", BACKWARDS: "backwards",
+                   NO_DATA: "no_data"}
 
 
 class StreamError(ValueError):
@@ -242,6 +245,7 @@ class PeriodEstimate(NamedTuple):
     valid: bool
     reason: str
     latency_ns: int        # time spent computing it
+    cause: str = "unknown"  # the reason as one of messages.ESTIMATE_CAUSES
 
 
 class PeriodEstimator:
@@ -318,7 +322,7 @@ class PeriodEstimator:
             return []
         self.stalled = True
         self.stream.reset(STALE)
-        out = [self._estimate(self.next_end_ns, f"{STALE}: no frame for {self.wall_timeout_s} s")]
+        out = [self._estimate(self.next_end_ns, f"{STALE}: no frame for {self.wall_timeout_s} s", "stale")]
         self.next_end_ns += self.period_ns
         return out
 
@@ -336,16 +340,17 @@ class PeriodEstimator:
             self.next_end_ns += self.period_ns
         return out, warning
 
-    def _estimate(self, end_ns: int, reason: str = "") -> PeriodEstimate:
+    def _estimate(self, end_ns: int, reason: str = "", cause: str = "unknown") -> PeriodEstimate:
         t = time.perf_counter_ns()
         if reason:
             ratio, valid = float("nan"), False
         else:
             ratio, valid, reason = self.stream.estimate(end_ns)
+            cause = CAUSE_OF_REASON[reason]
             if valid and self.pzt_problem:
-                ratio, valid, reason = float("nan"), False, self.pzt_problem
+                ratio, valid, reason, cause = float("nan"), False, self.pzt_problem, "pzt_mismatch"
         latency = time.perf_counter_ns() - t
         self.latencies_ns.append(latency)
         self.published += 1
         self.invalid += not valid
-        return PeriodEstimate(end_ns // self.period_ns - 1, end_ns, ratio, valid, reason, latency)
+        return PeriodEstimate(end_ns // self.period_ns - 1, end_ns, ratio, valid, reason, latency, cause)

@@ -85,8 +85,8 @@ class Estimator(Node):
 
     def on_tick(self, msg: ActuatorState) -> None:
         if self.origin.origin_ns is None:
-            held = self.origin.tick(msg.step_index, msg.stamp_ns)
-            self.log(f"period {msg.step_index} ends at the actuator's tick; {len(held)} frames held")
+            held = self.origin.tick(msg.period, msg.stamp_ns)
+            self.log(f"period {msg.period} ends at the actuator's tick; {len(held)} frames held")
             for frame in held:
                 self.on_frame(frame)
 
@@ -117,7 +117,7 @@ class Estimator(Node):
         for e in estimates:
             self.estimate_pub.publish(SlipEstimate(
                 stick_ratio=e.stick_ratio, valid=e.valid, method=self.core.method, period=e.period,
-                window_end_ns=e.window_end_ns, latency_ns=e.latency_ns, reason=e.reason,
+                window_end_ns=e.window_end_ns, latency_ns=e.latency_ns, reason=e.reason, cause=e.cause,
                 stamp_ns=e.window_end_ns + self.origin.origin_ns))
 
     def report(self) -> None:

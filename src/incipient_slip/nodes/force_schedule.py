@@ -4,7 +4,7 @@
 
 The paper collects its data with F_N redrawn every 500 ms period from 1.1, 1.5, ..., 5.9 kPa. On
 the simulated rig rig_sim draws them itself; on the emulated and the real rig this node answers
-each period's tick (`ActuatorState(step_index=k)`) with `GripCommand(period=k)` asking for the
+each period's tick (`ActuatorState(period=k)`) with `GripCommand(period=k)` asking for the
 next period's draw, the same draws as the simulated rig's (`sim.protocols.collection_forces_kpa`
 of the series' seed), and the UR5 node presses to it within its own limits (its position loop,
 step and press limits). What F_N the fingertip got is measured (P_DC, `/robot/state`), not
@@ -39,7 +39,7 @@ class ForceSchedule(Node):
         self.log(f"F_N of {len(self.forces)} periods from seed {self.param('seed')}: {self.forces[:4]} ...")
 
     def on_tick(self, msg: ActuatorState) -> None:
-        k = msg.step_index
+        k = msg.period
         if k <= self.last:                       # a repeated or old tick: answered already
             self.warn(f"tick {k} after {self.last}: not answered again", throttle_s=1.0)
             return
@@ -47,7 +47,7 @@ class ForceSchedule(Node):
             self.wait_before_first(self.pub, self.param("wait_subscribers"), self.param("wait_timeout_s"))
         self.last = k
         nxt = self.forces[min(k + 1, len(self.forces) - 1)]
-        self.pub.publish(GripCommand(normal_force_kpa=nxt, period=k, reason="collection schedule"))
+        self.pub.publish(GripCommand(normal_force_kpa=nxt, period=k, reason="collection schedule", cause="schedule"))
 
 
 def main(argv=None):

@@ -9,7 +9,10 @@ estimate") when no usable estimate came within `estimate_timeout_s` (wall clock)
 waits for its estimate, so the run is a function of the seed and the parameters, not of the CPU
 load; `estimate_timeout_s` is then a liveness limit only (a warning; the rig's own
 `lockstep_timeout_s` ends a run whose estimator stopped). The bookkeeping is
-`control.PeriodAnswerer`; the law, clamps and rate limit are `control.next_force`. Whoever
+`control.PeriodAnswerer`, which returns the `GripCommand`s published here as they are; the law,
+clamps and rate limit are `control.next_force`. An invalid estimate whose cause is `filling`
+(the estimator's window not full yet, the start of every run) is logged; any other unusable
+estimate is a warning. Whoever
 applies the command (rig_sim, the UR5 node) reads `/grip/command`.
 """
 from __future__ import annotations
@@ -55,7 +58,6 @@ class GripController(Node):
         self.command_pub = self.create_publisher(GripCommand)
         self.create_subscription(SlipEstimate, self.on_estimate)
         self.create_subscription(ActuatorState, self.on_tick)
-        self.input_ns = 0       # the latest stamp of an input: a command carries it (one time base)
         self.create_timer(0.01, self.clock)
         self.readers_ready = p("wait_subscribers") == 0
 
@@ -68,35 +70,33 @@ class GripController(Node):
                           f"{self.param('estimate_timeout_s')} s; waiting (a liveness warning, the "
                           f"answer does not change)", throttle_s=5.0)
             return
-        answers = self.core.clock(now)
-        if answers:
-            self.warn(f"period {answers[-1].period}: no estimate {self.param('estimate_timeout_s')} s after "
+        commands = self.core.clock(now)
+        if commands:
+            self.warn(f"period {commands[-1].period}: no estimate {self.param('estimate_timeout_s')} s after "
                       f"its tick: hold ({self.core.holds} holds)", throttle_s=1.0, key="late")
-        self.send(answers)
+        self.send(commands)
 
     def on_tick(self, msg: ActuatorState) -> None:
-        self.input_ns = max(self.input_ns, msg.stamp_ns)
-        self.send(*self.core.tick(msg.step_index, time.monotonic()))
+        self.send(*self.core.tick(msg.period, time.monotonic(), msg.stamp_ns))
 
     def on_estimate(self, msg: SlipEstimate) -> None:
-        self.input_ns = max(self.input_ns, msg.stamp_ns)
-        answers, warning = self.core.estimate(msg.period, msg.stick_ratio, msg.valid, msg.method, msg.reason)
-        if warning.endswith("estimate marked invalid (filling)"):
+        commands, notice = self.core.estimate(msg.period, msg.stick_ratio, msg.valid, msg.method, msg.reason,
+                                              msg.cause, msg.stamp_ns)
+        if notice.filling:
             # expected at the start of every run: the estimator's window is not full yet
-            self.log(f"{warning}: the force holds until the estimator's window is full")
-            warning = ""
-        self.send(answers, warning)
+            self.log(f"{notice}: the force holds until the estimator's window is full")
+            notice = control.Notice()
+        self.send(commands, notice)
 
-    def send(self, answers, warning: str = "") -> None:
+    def send(self, commands: list[GripCommand], warning: str = "") -> None:
         if warning:
             self.warn(f"{warning} ({self.core.rejected} estimates rejected, "
                       f"{self.core.refused_ticks} ticks refused so far)", throttle_s=1.0)
-        if answers and not self.readers_ready:   # once: period 0's answer must not be lost
+        if commands and not self.readers_ready:   # once: period 0's answer must not be lost
             self.readers_ready = True
             self.wait_before_first(self.command_pub, self.param("wait_subscribers"), self.param("wait_timeout_s"))
-        for a in answers:
-            self.command_pub.publish(GripCommand(normal_force_kpa=a.normal_force_kpa, hold=a.hold,
-                                                 period=a.period, reason=a.reason, stamp_ns=self.input_ns))
+        for command in commands:
+            self.command_pub.publish(command)
 
 
 def main(argv=None):

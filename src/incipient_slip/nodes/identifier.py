@@ -133,7 +133,7 @@ class Identifier(Node):
             self.shutdown("robot stopped", EXIT_FAULT)
 
     def on_tick(self, msg: ActuatorState) -> None:
-        self.windows.tick(msg.step_index, msg.stamp_ns, msg.position_mm)
+        self.windows.tick(msg.period, msg.stamp_ns, msg.position_mm)
         self.last_news = time.monotonic()
         self.try_period()
 
@@ -180,7 +180,8 @@ class Identifier(Node):
             self.last_phase = cmd.phase
             self.log(f"period {k}: {cmd.phase} (F_N {cmd.normal_force_kpa:.2f} kPa)")
         self.actuator_pub.publish(ActuatorCommand(position_mm=cmd.actuator_mm, period=k))
-        self.grip_pub.publish(GripCommand(normal_force_kpa=cmd.normal_force_kpa, period=k, reason=cmd.phase))
+        self.grip_pub.publish(GripCommand(normal_force_kpa=cmd.normal_force_kpa, period=k, reason=cmd.phase,
+                                          cause="schedule"))
 
     def check_liveness(self) -> None:
         limit = self.param("silence_timeout_s")

@@ -10,7 +10,7 @@ the configuration against it (`zaber.check_stage`: the axis exists, `resolution`
 change), homes the axis if it has no reference position (WR) and moves to `start_mm`. Then every `period_s` it moves to the next
 absolute target `start_mm + (k + 1) * travel_mm / steps` (absolute targets: no rounding drift,
 and a lost reply can be resent safely), waits until IDLE, reads the position back and
-publishes `ActuatorState(step_index=k)`: the period tick the grip controller answers. With
+publishes `ActuatorState(period=k)`: the period tick the grip controller answers. With
 `lockstep: true` step k + 1 waits for the `GripCommand` of period k. Step 0 waits (at most
 `wait_timeout_s`) until the readers the launch names for its outputs have subscribed (started by
 hand: until the tick has `wait_subscribers` readers), so period 0 is not lost, and
@@ -20,7 +20,7 @@ step and tick come one period later.
 
 `mode: commanded` (rig identification, launch/identify.yaml): no steps of its own; each
 `ActuatorCommand(period=k)` moves the stage to `start_mm + position_mm` (clamped to the limits,
-with a warning) and publishes `ActuatorState(step_index=k)` once the move is done and read back;
+with a warning) and publishes `ActuatorState(period=k)` once the move is done and read back;
 an older or repeated period is refused and counted. A move may take `move_timeout_s` plus its
 distance at `speed_mm_s`. On shutdown (the end, Ctrl-C, SIGTERM) it moves back to start_mm, where
 the tension spring is slack, so an interrupted identification leaves the rig unloaded. Commands before the readers and the tare are in wait for them (the
@@ -213,7 +213,7 @@ class LinearActuator(Node):
         except zaber.ZaberError as exc:
             self._fault(f"step {k}: {exc}")
             return
-        self.state_pub.publish(ActuatorState(position_mm=position, step_index=k, busy=False))
+        self.state_pub.publish(ActuatorState(position_mm=position, period=k, busy=False))
         self.k += 1
         if self.k >= self.steps:
             self.done = True
@@ -249,7 +249,7 @@ class LinearActuator(Node):
             return
         self.last_period = msg.period
         self.k += 1                   # moves done (the log at the end)
-        self.state_pub.publish(ActuatorState(position_mm=position, step_index=msg.period, busy=False))
+        self.state_pub.publish(ActuatorState(position_mm=position, period=msg.period, busy=False))
 
     def _move_at_speed(self, target_mm: float, during: str) -> float:
         """A commanded-mode move of any length: it may take move_timeout_s plus its distance at speed_mm_s."""

@@ -5,7 +5,7 @@
 Each 500 ms period k is one `sim.Rig.step_period` call (the same call the in-process data set
 generator makes) and goes out as 50 `BiotacPac`, 50 `BiotacSlow`, 60 `ObjectPose`, one
 `RobotState` (the F_N applied), one `SimTruth` (the simulator's true stick ratio and F_T, which no
-sensor measures; for the supervisor's run trace) and one `ActuatorState(step_index=k)` (the stage's
+sensor measures; for the supervisor's run trace) and one `ActuatorState(period=k)` (the stage's
 position after the period's step, as the Zaber node reads it back), the last two stamped at the period's end, in stamp order, all with sim stamps (docs/design.md, "Time base"). Only the streams of the
 scene's effects are published: no P_AC without a vibration effect, no `BiotacSlow` without
 electrodes / P_DC / temperature, no `ObjectPose` without mocap, no `PztState` without injection.
@@ -424,7 +424,7 @@ class RigSim(Node):
                                tangential_force_n=float(out.tangential_force_n),
                                gross_slip=bool(out.gross_slip), stamp_ns=end)))
         items.append((end, self.tick_pub,      # where the stage stands at the tick: after the period's
-                      ActuatorState(position_mm=self.rig.state.actuator_mm, step_index=k, stamp_ns=end)))
+                      ActuatorState(position_mm=self.rig.state.actuator_mm, period=k, stamp_ns=end)))
         return items
 
     def slow_messages(self, out: PeriodOutput, k: int) -> list:

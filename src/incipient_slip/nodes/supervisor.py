@@ -125,9 +125,9 @@ class Supervisor(Node):
         if self.last_command is None:
             self.last_command = time.monotonic()
         if self.origin.origin_ns is None:
-            for item in self.origin.tick(msg.step_index, msg.stamp_ns):
+            for item in self.origin.tick(msg.period, msg.stamp_ns):
                 self.on_rig(*item)
-        self.judge.rig_tick(msg.step_index)
+        self.judge.rig_tick(msg.period)
 
     def on_command(self, msg: GripCommand) -> None:
         self.input_ns = max(self.input_ns, msg.stamp_ns)
