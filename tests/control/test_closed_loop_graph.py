@@ -125,6 +125,10 @@ def test_nan_and_out_of_range_estimates_are_rejected_and_the_force_held(graph, p
         assert by_period[k].normal_force_kpa == start
     assert "outside [0, 1]" in by_period[2].reason and "not finite" in by_period[4].reason
     assert not by_period[6].hold and by_period[6].normal_force_kpa > start   # low s raises F_N
+    # the cause on the wire, what a reader switches on (the reason is for people)
+    assert [by_period[k].cause for k in range(7)] == [
+        "law", "estimate_not_finite", "estimate_out_of_range", "estimate_out_of_range", "estimate_not_finite",
+        "estimate_invalid", "law"]
 
 
 @pytest.mark.timeout(60)
@@ -136,7 +140,7 @@ def test_stale_estimates_make_the_controller_hold_within_one_period(graph, probe
     probe.until(lambda: len(node.commands) >= 6, 30, nodes=[node], procs=procs)
     by_period = {c.period: c for c in node.commands}
     for k in (3, 4, 5):
-        assert by_period[k].hold and by_period[k].reason == "stale estimate"
+        assert by_period[k].hold and by_period[k].reason == "stale estimate" and by_period[k].cause == "stale_estimate"
         assert by_period[k].normal_force_kpa == by_period[2].normal_force_kpa   # never ramps
 
 

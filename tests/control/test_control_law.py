@@ -10,7 +10,8 @@ from incipient_slip.control import (
     MAX_TICK_SKIP, SAFETY_LIMIT_KPA, ControlParams, PeriodAnswerer, RunJudge,
     SupervisorRules, action, applied_force, estimate_problem, judge_step, next_force, score,
 )
-from incipient_slip.messages import PERIOD_NS
+from incipient_slip.control import LockstepCloser, RealTimeCloser, problem_of
+from incipient_slip.messages import GRIP_CAUSES, PERIOD_NS, GripCommand
 
 PARAMS = ControlParams()
 ANY_FLOAT = st.floats(allow_nan=True, allow_infinity=True)
@@ -409,3 +410,51 @@ def test_applied_force_moves_at_most_one_rate_step_from_the_current_force(comman
     assert abs(force - current) <= step * (1 + 1e-9) + 1e-12
     if math.isfinite(command) and abs(command - current) <= step and 0.0 <= command <= SAFETY_LIMIT_KPA:
         assert force == command                     # a step the law itself takes passes unchanged
+
+
+# --- the answerer's commands are the wire's; causes are a closed set --------------------------
+
+def test_the_answerer_returns_the_wire_commands_with_the_latest_input_stamp():
+    core = PeriodAnswerer(PARAMS, 2.9, "injection", estimate_timeout_s=0.4)
+    assert core.tick(0, 0.0, stamp_ns=500) == ([], "")
+    [command], notice = core.estimate(0, 0.1, True, "injection", stamp_ns=400)
+    assert type(command) is GripCommand and not notice
+    assert (command.period, command.hold, command.cause, command.stamp_ns) == (0, False, "law", 500)
+    assert command.normal_force_kpa == next_force(2.9, 0.1, PARAMS).normal_force_kpa
+
+
+@pytest.mark.parametrize("reason, cause, filling", [
+    ("filling", "filling", True),
+    ("filling", "seq_gap", False),       # the words alone never decide: before, this text was a log line
+    ("window not full", "filling", True),
+])
+def test_the_window_filling_is_told_by_the_estimates_cause(reason, cause, filling):
+    core = PeriodAnswerer(PARAMS, 2.9, "injection", estimate_timeout_s=0.4)
+    core.tick(0, 0.0)
+    [command], notice = core.estimate(0, float("nan"), False, "injection", reason, cause)
+    assert command.hold and command.cause == "estimate_invalid" and reason in command.reason
+    assert notice and notice.filling is filling
+
+
+def test_a_usable_estimate_of_the_filling_kind_is_no_notice():
+    core = PeriodAnswerer(PARAMS, 2.9, "injection", estimate_timeout_s=0.4)
+    core.tick(0, 0.0)
+    _, notice = core.estimate(0, 0.3, True, "injection", "ok", "ok")
+    assert notice == "" and not notice.filling
+
+
+@pytest.mark.parametrize("args, cause", [
+    ((0.3,), ""), ((0.3, False), "estimate_invalid"), ((float("nan"),), "estimate_not_finite"),
+    (("0.3",), "estimate_not_finite"), ((1.5,), "estimate_out_of_range"),
+    ((0.3, True, 4, 5), "estimate_other_period"), ((0.3, True, None, None, "e1", "injection"), "estimate_other_method"),
+])
+def test_every_problem_has_a_cause_of_the_wire_set(args, cause):
+    problem = problem_of(*args)
+    assert problem.cause == cause and bool(problem) == bool(cause) and bool(problem.text) == bool(cause)
+    assert not cause or cause in GRIP_CAUSES
+
+
+def test_each_mode_has_its_period_closer():
+    assert type(RunJudge(SupervisorRules(), lockstep=True).closer) is LockstepCloser
+    judge = RunJudge(SupervisorRules(), data_wait_s=2.5)
+    assert type(judge.closer) is RealTimeCloser and judge.closer.data_wait_s == 2.5 and not judge.lockstep
