@@ -109,7 +109,7 @@ class PeriodAnswerer:
 
     def overdue(self, now_s: float) -> list[int]:
         """The periods still waiting for their estimate `estimate_timeout_s` after their tick."""
-        return [k for k, deadline in self.waiting.items() if now_s >= deadline]
+        return [waiting for waiting, deadline in self.waiting.items() if now_s >= deadline]
 
     def _reject(self, why: str) -> tuple[list[GripCommand], Notice]:
         self.rejected += 1
@@ -122,9 +122,9 @@ class PeriodAnswerer:
     def _answer(self, period: int, decision: ControlDecision) -> list[GripCommand]:
         """Answers the waiting periods before `period` with holds (their estimate never came), then it."""
         held = hold(self.force_kpa, STALE, self.params)
-        commands = [self._command(k, held) for k in sorted(self.waiting) if k < period]
+        commands = [self._command(waiting, held) for waiting in sorted(self.waiting) if waiting < period]
         commands.append(self._command(period, decision))
-        self.waiting = {k: t for k, t in self.waiting.items() if k > period}
+        self.waiting = {later: t for later, t in self.waiting.items() if later > period}
         self.last_answered = period
         self.force_kpa = decision.normal_force_kpa
         self.holds += sum(c.hold for c in commands)

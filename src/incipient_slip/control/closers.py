@@ -75,14 +75,14 @@ class RealTimeCloser:
         return now_s >= (deadline if rig_done else max(deadline, self.rig_heard_s + self.data_wait_s))
 
     @staticmethod
-    def _force_done(k: int, data: Records) -> bool:
-        """Period k's F_N is in, or never will be: the robot's next one is in (its states come in
-        order; a robot node starved for a whole period stamps none in it)."""
-        return any(j >= k for j in data.force)
+    def _force_done(period: int, data: Records) -> bool:
+        """The period's F_N is in, or never will be: the robot's next one is in (its states come
+        in order; a robot node starved for a whole period stamps none in it)."""
+        return any(later >= period for later in data.force)
 
-    def _pose_done(self, k: int, data: Records) -> bool:
-        """The last pose of period k is in: one within a sample of its end, or a later one
+    def _pose_done(self, period: int, data: Records) -> bool:
+        """The last pose of the period is in: one within a sample of its end, or a later one
         (the rig's messages come in order)."""
-        end = (k + 1) * self.period_ns
-        return any(j > k for j in data.travel) or any(j > k for j in data.force) or (
-            k in data.travel and data.travel[k][0] >= end - MOCAP_SAMPLE_NS - 1_000_000)
+        end = (period + 1) * self.period_ns
+        return any(later > period for later in data.travel) or any(later > period for later in data.force) or (
+            period in data.travel and data.travel[period][0] >= end - MOCAP_SAMPLE_NS - 1_000_000)

@@ -188,15 +188,15 @@ class RunJudge:
     def _take_measurements(self, period: int) -> None:
         """y and F_N of `period` (the latest y so far; the last F_N when none was stamped in
         it, counted), and the data up to it dropped."""
-        past = [j for j in self.travel if j <= period]
+        past = [earlier for earlier in self.travel if earlier <= period]
         if past:
             self.travel_mm = self.travel[max(past)][1]
         if period not in self.force and math.isfinite(self.force_kpa):
             self.force_carried += 1       # judged on the last F_N: none was stamped in this period
         self.force_kpa = self.force.get(period, self.force_kpa)
-        for d in (self.travel, self.force, self.estimates):
-            for j in [j for j in d if j <= period]:
-                del d[j]
+        for data in (self.travel, self.force, self.estimates):
+            for done in [done for done in data if done <= period]:
+                del data[done]
 
     def end(self, verdict: Verdict) -> None:
         """Ends the run from outside (a silent graph, an interruption)."""
@@ -207,7 +207,7 @@ class RunJudge:
         """Return the run summary: verdict, final y and F_N, counts, `recorded` and the traces
         (one entry per judged period, with the simulated rig's truth of that period)."""
         v = self.verdict
-        truth = [self.truth.get(k, (NAN, NAN)) for k in self.traces["period"]]
+        truth = [self.truth.get(period, (NAN, NAN)) for period in self.traces["period"]]
         traces = {**self.traces, **{key: [t[i] for t in truth] for i, key in enumerate(TRUTH_TRACES)}}
         return {"outcome": v.kind, "success": v.kind == "success", "detail": v.detail,
                 "steps": self.steps, "max_steps": self.rules.max_steps,

@@ -183,6 +183,12 @@ tests/messages/test_messages_doc.py pins each type's declarations to its version
 to the declarations without a bump fails the tests. Publishers and subscribers of one graph run
 the same version.
 
+Recordings outlive builds: their readers (`slip bag`, replay, export, recover, the lab's import)
+also read the older versions `messages/history.py` lists, as the current version (a replay puts
+the current version on the wire): ActuatorState v1 (`step_index`, now `period`), SlipEstimate v1
+and GripCommand v1 (no `cause`: it is read from the reason's words, `unknown` when they are not
+the code's). A version bump that renames or removes a field adds its entry there.
+
 ## Topics
 
 Ranges are inclusive; "full width" means the width's own range. "-1: not tied to a period"

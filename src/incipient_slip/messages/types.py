@@ -199,7 +199,8 @@ class GripCommand(Message):
     hold: bool = flag(False)
     period: int = integer("int64", -1, low=-1, high=STEP_LIMIT, note=_NO_PERIOD)
     reason: str = text("", note="for people; code switches on cause")
-    cause: str = text("unknown", choices=GRIP_CAUSES)
+    cause: str = text("unknown", choices=GRIP_CAUSES, note="why this force (holds: why the estimate could "
+                      "not drive it); messages/types.py says what each means")
 
 
 @dataclass(frozen=True, eq=False)
@@ -239,7 +240,8 @@ class SlipEstimate(Message):
     latency_ns: int = integer("uint64", unit="ns")
     period: int = integer("int64", -1, low=-1, high=STEP_LIMIT, note=_NO_PERIOD)
     reason: str = text("", note="for people; code switches on cause")
-    cause: str = text("unknown", choices=ESTIMATE_CAUSES)
+    cause: str = text("unknown", choices=ESTIMATE_CAUSES, note="why the estimate is (in)valid; "
+                      "messages/types.py says what each means")
 
 
 @dataclass(frozen=True, eq=False)
