@@ -89,6 +89,9 @@ def test_a_stamp_going_backwards_restarts_the_periods():
     again, _ = feed(core, range(150), seq_of=lambda j: 150 + j)
     assert [e.period for e in out + again] == [0, 1, 2, 0, 1, 2]
     assert not again[0].valid and again[2].valid
+    # the cause the wire carries (what the grip controller switches on), beside the words
+    assert [e.cause for e in out] == ["filling", "ok", "ok"]
+    assert again[0].cause == "backwards" and again[2].cause == "ok"
 
 
 def test_watchdog_gives_one_stale_estimate_when_the_stream_stops():
@@ -96,7 +99,7 @@ def test_watchdog_gives_one_stale_estimate_when_the_stream_stops():
     core.frame(frame_stamp(0), 0, COUNTS, now_s=10.0)
     assert core.tick(10.29) == []
     [stale] = core.tick(10.3)
-    assert stale.period == 0 and not stale.valid and stale.reason.startswith("stale")
+    assert stale.period == 0 and not stale.valid and stale.reason.startswith("stale") and stale.cause == "stale"
     assert core.tick(11.0) == [] and core.tick(20.0) == []                # once, not per tick
     core.frame(frame_stamp(1), 1, COUNTS, now_s=20.0)
     assert core.tick(20.31)[0].period == 1                                # armed again by a frame
@@ -124,5 +127,5 @@ def test_pzt_state_that_contradicts_the_model_invalidates_estimates():
     core = PeriodEstimator(MODEL)
     assert "PZT is off" in core.pzt(False)
     out, _ = feed(core, range(150))
-    assert not any(e.valid for e in out) and "PZT is off" in out[-1].reason
+    assert not any(e.valid for e in out) and "PZT is off" in out[-1].reason and out[-1].cause == "pzt_mismatch"
     assert core.pzt(True) == ""

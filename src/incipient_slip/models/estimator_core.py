@@ -346,7 +346,7 @@ class PeriodEstimator:
             ratio, valid = float("nan"), False
         else:
             ratio, valid, reason = self.stream.estimate(end_ns)
-            cause = CAUSE_OF_REASON[reason]
+            cause = CAUSE_OF_REASON.get(reason, "unknown")
             if valid and self.pzt_problem:
                 ratio, valid, reason, cause = float("nan"), False, self.pzt_problem, "pzt_mismatch"
         latency = time.perf_counter_ns() - t
