@@ -95,3 +95,13 @@ def test_a_recording_of_the_old_schema_reads_through_the_bag_reader(tmp_path):
     got = [r.message() for r in read_bag(path)]
     assert [type(m).__name__ for m in got] == ["ActuatorState", "SlipEstimate"]
     assert got[0].period == 1 and got[1].cause == "filling"
+
+
+def test_recover_saves_an_old_body_as_the_current_version(tmp_path):
+    from incipient_slip.graph.bag import recover
+    src, dst = tmp_path / "old.mcap", tmp_path / "fixed.mcap"
+    with BagWriter(src) as bag:
+        bag.write_body("/actuator/state", "ActuatorState", V1_TICK, log_time_ns=1, stamp_ns=1_000_000_000, seq=4)
+    assert recover(src, dst).malformed == 0
+    [rec] = read_bag(dst)
+    assert rec.body == current_body(V1_TICK) and M.decode(rec.body, M.ActuatorState).period == 1

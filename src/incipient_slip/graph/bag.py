@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from io import BytesIO
 from typing import IO, Callable, Iterable, Iterator
 
-from incipient_slip.messages import MESSAGE_TYPES, Message, MessageError, decode_recorded, encode
+from incipient_slip.messages import MESSAGE_TYPES, Message, MessageError, current_body, decode_recorded, encode
 from incipient_slip.messages.schema import json_schema  # derived from the field declarations
 
 __all__ = ["BagError", "BagRecord", "BagWriter", "TopicInfo", "BagInfo", "Damage", "Recovery",
@@ -452,7 +452,8 @@ def recover(src: str | os.PathLike, dst: str | os.PathLike,
     """Writes every readable message of `src` (finished or not) to a finished file `dst`.
 
     Bodies are copied byte for byte after validation (a body that breaks the wire contract
-    is counted in `malformed` and left out); receive times, stamps and seqs are kept.
+    is counted in `malformed` and left out; one of an older schema version is written as the
+    current version, messages.history); receive times, stamps and seqs are kept.
     """
     src, dst = os.fspath(src), os.fspath(dst)
     if os.path.exists(dst) and os.path.exists(src) and os.path.samefile(src, dst):
@@ -487,11 +488,13 @@ class Recovery:
 
     def copy(self, out: BagWriter, rec: BagRecord) -> None:
         try:
-            decode_recorded(rec.body, rec.topic)
+            # an older schema version is saved as the current one: the channel's schema and
+            # version metadata are the current type's (messages.history)
+            body = current_body(rec.body, rec.topic)
         except MessageError:
             self.malformed += 1
             return
-        out.write_body(rec.topic, rec.type_name, rec.body, log_time_ns=rec.log_time_ns,
+        out.write_body(rec.topic, rec.type_name, body, log_time_ns=rec.log_time_ns,
                        stamp_ns=rec.stamp_ns, seq=rec.sequence)
         self.counts[rec.topic] = self.counts.get(rec.topic, 0) + 1
         self.last_log_ns = max(self.last_log_ns, rec.log_time_ns)
