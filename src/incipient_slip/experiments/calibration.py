@@ -12,7 +12,6 @@ table (paper / simulated rig / within tolerance) is printed and rendered.
 from __future__ import annotations
 
 import dataclasses
-import datetime as _dt
 import itertools
 import math
 import re
@@ -627,8 +626,8 @@ def run(settings) -> dict:
         rows.append({"id": "T6", "paper": "pattern (a)-(e)", "sim": "; ".join(
             f"({k}) {'pass' if ok else 'FAIL'}: {detail}" for k, (ok, detail) in items.items()),
             "tol": "all five items", "ok": all(ok for ok, _ in items.values())})
-    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d")
-    prov = (f"fitted (slip reproduce calibration, {stamp}, budget {settings.budget}, seed {settings.seed}, "
+    # no run date in the provenance: the page and the params file are what the command makes, on any day
+    prov = (f"fitted (slip reproduce calibration, budget {settings.budget}, seed {settings.seed}, "
             f"{n_series} collection series, {runs} no-action runs per material, T7 ramps at 5 levels; Nelder-Mead, "
             f"objective J {mech['objective']:.3f} on T1-T4', T7 of docs/calibration.md, amendment 2)")
     t7_betas = [r["beta"] for r in betas if all(range_ok(v) for v in r["T7"].values())]
@@ -645,10 +644,10 @@ def run(settings) -> dict:
                                              "unslid and low-friction ones far past 2.48 mm; amendment 2a); range 0.1-1.5"),
               "fingertip_modes.fn_channel_gain": (fn["value"], f"prior 0.3 (paper: the biomimetic structure barely "
                                                   f"suppresses propagation by normal force), bounded by P1 <= 0.5 on the grid "
-                                                  f"{list(FN_GAIN_GRID)} (slip reproduce calibration, {stamp}); the data bound it, "
+                                                  f"{list(FN_GAIN_GRID)} (slip reproduce calibration); the data bound it, "
                                                   f"they do not pin it")}
     if el is not None and opt("electrode_grid", False):
-        eprov = (f"fitted (slip reproduce calibration, {stamp}, budget {settings.budget}): documented grid "
+        eprov = (f"fitted (slip reproduce calibration, budget {settings.budget}): documented grid "
                  f"{ELECTRODE_GRID} on the estimation pattern T6 (0.5 per failed item, ties to the smaller amplitude)")
         fitted["electrodes.core_stiction_ratio"] = (el["core_stiction_ratio"], eprov + "; prior range 0-0.3")
         fitted["electrodes.contact_offset_counts"] = (el["contact_offset_counts"], eprov + "; prior range 0-15")
