@@ -93,11 +93,13 @@ def test_quick_calibration_prints_a_target_row_for_every_preregistered_target(tm
     s = Settings(budget="quick", work=tmp_path, progress=False, options={"series": 5, "runs": 1, "maxfev": 3,
                                                                       "skip_estimation": True,
                                                                       "skip_beta_interval": True})
+    from incipient_slip.sim.scene import PARAMS_DIR
+    shipped = (PARAMS_DIR / "default.yaml").read_bytes()
     res = cal.run(s)
     assert sorted(r["id"] for r in res["targets"]) == sorted(t for t in cal.TARGETS if t != "T6")
     block = cal.render(res)["calibration-table"]
     assert "Simulated rig" in block and "| T4 |" in block and "`stick_slip.spring_n_per_mm`" in block
-    assert res["params_written"] == ""
+    assert (PARAMS_DIR / "default.yaml").read_bytes() == shipped     # only --write-params writes it
 
 
 def test_estimation_pattern_items_follow_the_preregistered_rules():

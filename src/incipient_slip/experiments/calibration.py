@@ -652,17 +652,16 @@ def run(settings) -> dict:
         fitted["electrodes.core_stiction_ratio"] = (el["core_stiction_ratio"], eprov + "; prior range 0-0.3")
         fitted["electrodes.contact_offset_counts"] = (el["contact_offset_counts"], eprov + "; prior range 0-15")
         fitted["electrodes.drift_counts"] = (el["drift_counts"], eprov + "; stationary std of the OU drift, prior range 0-10")
-    written = ""
-    if opt("write_params", False):
+    if opt("write_params", False):       # (not in the results: they are the same with or without it)
         if fixed:
             raise UsageError("--write-params with --set would store a point of the uncertainty set as the nominal fit")
         path = PARAMS_DIR / "default.yaml"
         write_params(path, fitted)
-        written = str(path)
+        print(f"wrote the fitted values into {path}", flush=True)
     return {"fitted": {k: v[0] for k, v in fitted.items()}, "provenance": {k: v[1] for k, v in fitted.items()},
             "fixed": {f"{s}.{k}": v for (s, k), v in fixed.items()}, "mechanics": mech, "fn_channel": fn,
             "beta_interval": betas,
-            "vibration": vib, "electrodes": el, "targets": rows, "figure": figure, "params_written": written, "budget": settings.budget,
+            "vibration": vib, "electrodes": el, "targets": rows, "figure": figure, "budget": settings.budget,
             "all_within": all(r["ok"] for r in rows)}
 
 
