@@ -338,9 +338,9 @@ def _previous(settings: Settings) -> dict:
 
 def graphs_in_parallel(jobs: int) -> int:
     """Lock-step graphs are latency-bound (each period is five hops between processes, most of it
-    waiting), so twice as many graphs as jobs keep the cores busy: 12 runs took 0.56-0.77x the wall
-    time with 4 graphs as with 2 on 2 cores (bench: `slip reproduce stabilization --jobs N`). Lock-step
-    results do not depend on it (tests/graph: the determinism test under load)."""
+    waiting), so twice as many graphs as jobs keep the cores busy: the Table's 80 runs took 142-149 s
+    with 4 graphs against 174-177 s with 2 on 2 cores, alternating (0.83x), with identical results
+    (`slip reproduce stabilization --jobs 1` runs 2 graphs, `--jobs 2` 4)."""
     return 2 * jobs
 
 
