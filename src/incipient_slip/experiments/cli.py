@@ -75,11 +75,9 @@ def register(subparsers) -> None:
 
 
 def _run_one(argv: list[str], log: Path) -> int:
-    """`slip reproduce ARGV` in this process, its output going to `log` (for reproduce all)."""
+    """`slip reproduce ARGV` in a process of its own, its output going to `log` (for reproduce all)."""
     from .reproduce_all import run_logged
-    parser = argparse.ArgumentParser(prog="slip")
-    register(parser.add_subparsers(dest="command", required=True))
-    return run_logged(parser, cmd_reproduce, argv, log)
+    return run_logged(argv, log)
 
 
 def settings_from_args(args: argparse.Namespace, module) -> Settings:
