@@ -547,9 +547,13 @@ def render_sweep(sweep: dict | None) -> str:
     if n_success == 0:
         out.append("* With the paper's label no method succeeds at any s_d, so the paper's prediction "
                    "(electrodes failing above 0.7) cannot be tested with it on this simulated rig.")
-    for name, _, by_sd in lines[len([m for m in TABLE_METHODS if m in rows_s]):]:
+    n_paper = len([m for m in TABLE_METHODS if m in rows_s])
+    for i, (name, _, by_sd) in enumerate(lines):
         held = [x for x in sds if by_sd.get(repr(x), {}).get("success_rate", 0) >= 0.5]
-        out.append(f"* {name}: holds in at least half the runs at s_d " + (", ".join(f"{x:g}" for x in held) or "none")
+        if i < n_paper and not held:       # the paper's label: only the rows that hold somewhere
+            continue
+        out.append(f"* {name}{' (the paper’s label)' if i < n_paper else ''}: holds in at least half the runs "
+                   f"at s_d " + (", ".join(f"{x:g}" for x in held) or "none")
                    + " of " + ", ".join(f"{x:g}" for x in sds) + ".")
     if np.isfinite(inj_err).any():
         out.append(f"* Tracking error |ŝ − s_d| of injection over s_d: {fmt(np.nanmin(inj_err), '.3f')}"
