@@ -6,8 +6,9 @@ import pytest
 
 from incipient_slip import control
 from incipient_slip.cli import main
-from incipient_slip.experiments.stabilization import (TABLE_METHODS, aggregate, make_specs, materials,
-                                                      run_score, t_test_p)
+from incipient_slip.experiments.stabilization import make_specs
+from incipient_slip.experiments.stabilization.table import (TABLE_METHODS, aggregate, materials, run_score,
+                                                            t_test_p)
 from incipient_slip.messages import METHODS
 
 

@@ -245,24 +245,11 @@ def target_rows(mech: dict, vib: dict) -> list[dict]:
 
 def run(settings) -> dict:
     """Fit stage 1 and stage 2 and return the fitted values, the target table and provenance."""
-    from incipient_slip.sim.scene import PARAMS_DIR, load_scene
+    from incipient_slip.sim.scene import PARAMS_DIR
     opt = settings.option
-    n_series = opt("series", settings.pick(25, 100))
-    runs = opt("runs", settings.pick(2, 6))
-    maxfev = opt("maxfev", settings.pick(30, 80))
-    for label, v in (("--series", n_series), ("--runs", runs), ("--maxfev", maxfev)):
-        if v < 1:
-            raise UsageError(f"{label} must be >= 1, got {v}")
-    from incipient_slip.sim.scene import SceneError
-
+    n_series, runs, maxfev = _sizes(settings)
     fixed = parse_overrides(opt("overrides", []))
-    try:
-        scene = load_scene(opt("scene", "paper"))
-        scene = with_values(scene, fixed)
-    except (SceneError, KeyError) as exc:
-        raise UsageError(str(exc).strip("'")) from exc
-    if not scene.has("injection"):
-        raise UsageError(f"scene {scene.name!r} has no 'injection' effect; the 200 Hz band target T5 needs it")
+    scene = _scene_to_fit(opt("scene", "paper"), fixed)
     if settings.progress:
         print(f"stage 1 (mechanics): {n_series} collection series + {runs} no-action runs per material "
               f"per evaluation, at most {maxfev} evaluations (simulated rig)", flush=True)
@@ -283,16 +270,67 @@ def run(settings) -> dict:
     figure = collection_figure(scene, settings.seed + 5, settings.figures)
     el = None
     if not opt("skip_estimation", False):
-        n_est = opt("estimation_series", settings.pick(40, 100))
-        if settings.progress:
-            print(f"stage 2 (estimation pattern T6): electrode grid {ELECTRODE_GRID}, {n_est} series per data set",
-                  flush=True)
-        el = (fit_electrodes if opt("electrode_grid", False) else check_pattern)(
-            scene, n_est, settings.seed + 11, Path(settings.work) / "data", settings.progress, settings.jobs)
+        el = _estimation_pattern(settings, scene)
         items = el["items"]
         rows.append({"id": "T6", "paper": "pattern (a)-(e)", "sim": "; ".join(
             f"({k}) {'pass' if ok else 'FAIL'}: {detail}" for k, (ok, detail) in items.items()),
             "tol": "all five items", "ok": all(ok for ok, _ in items.values())})
+    fitted = _fitted_with_provenance(settings, n_series, runs, mech, betas, fn, el)
+    written = ""
+    if opt("write_params", False):
+        if fixed:
+            raise UsageError("--write-params with --set would store a point of the uncertainty set as the nominal fit")
+        path = PARAMS_DIR / "default.yaml"
+        write_params(path, fitted)
+        written = str(path)
+    return {"fitted": {k: v[0] for k, v in fitted.items()}, "provenance": {k: v[1] for k, v in fitted.items()},
+            "fixed": {f"{s}.{k}": v for (s, k), v in fixed.items()}, "mechanics": mech, "fn_channel": fn,
+            "beta_interval": betas,
+            "vibration": vib, "electrodes": el, "targets": rows, "figure": figure, "params_written": written, "budget": settings.budget,
+            "all_within": all(r["ok"] for r in rows)}
+
+
+def _sizes(settings) -> tuple[int, int, int]:
+    """Return stage 1's collection series, no-action runs and evaluations (UsageError below 1)."""
+    opt = settings.option
+    n_series = opt("series", settings.pick(25, 100))
+    runs = opt("runs", settings.pick(2, 6))
+    maxfev = opt("maxfev", settings.pick(30, 80))
+    for label, v in (("--series", n_series), ("--runs", runs), ("--maxfev", maxfev)):
+        if v < 1:
+            raise UsageError(f"{label} must be >= 1, got {v}")
+    return n_series, runs, maxfev
+
+
+def _scene_to_fit(name: str, fixed: dict) -> Scene:
+    """Return the scene to calibrate with the --set values (UsageError: unknown, or no injection for T5)."""
+    from incipient_slip.sim.scene import SceneError, load_scene
+
+    try:
+        scene = load_scene(name)
+        scene = with_values(scene, fixed)
+    except (SceneError, KeyError) as exc:
+        raise UsageError(str(exc).strip("'")) from exc
+    if not scene.has("injection"):
+        raise UsageError(f"scene {scene.name!r} has no 'injection' effect; the 200 Hz band target T5 needs it")
+    return scene
+
+
+def _estimation_pattern(settings, scene: Scene) -> dict:
+    """Stage 2's T6: the estimation pattern at the params file's electrode values, or their grid."""
+    opt = settings.option
+    n_est = opt("estimation_series", settings.pick(40, 100))
+    if settings.progress:
+        print(f"stage 2 (estimation pattern T6): electrode grid {ELECTRODE_GRID}, {n_est} series per data set",
+              flush=True)
+    return (fit_electrodes if opt("electrode_grid", False) else check_pattern)(
+        scene, n_est, settings.seed + 11, Path(settings.work) / "data", settings.progress, settings.jobs)
+
+
+def _fitted_with_provenance(settings, n_series: int, runs: int, mech: dict, betas: list, fn: dict,
+                            el: dict | None) -> dict:
+    """Return {parameter: (fitted value, its provenance)} of stage 1, the F_N channel and, with
+    --electrode-grid, the electrodes."""
     stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d")
     prov = (f"fitted (slip reproduce calibration, {stamp}, budget {settings.budget}, seed {settings.seed}, "
             f"{n_series} collection series, {runs} no-action runs per material, T7 ramps at 5 levels; Nelder-Mead, "
@@ -313,24 +351,13 @@ def run(settings) -> dict:
                                                   f"suppresses propagation by normal force), bounded by P1 <= 0.5 on the grid "
                                                   f"{list(FN_GAIN_GRID)} (slip reproduce calibration, {stamp}); the data bound it, "
                                                   f"they do not pin it")}
-    if el is not None and opt("electrode_grid", False):
+    if el is not None and settings.option("electrode_grid", False):
         eprov = (f"fitted (slip reproduce calibration, {stamp}, budget {settings.budget}): documented grid "
                  f"{ELECTRODE_GRID} on the estimation pattern T6 (0.5 per failed item, ties to the smaller amplitude)")
         fitted["electrodes.core_stiction_ratio"] = (el["core_stiction_ratio"], eprov + "; prior range 0-0.3")
         fitted["electrodes.contact_offset_counts"] = (el["contact_offset_counts"], eprov + "; prior range 0-15")
         fitted["electrodes.drift_counts"] = (el["drift_counts"], eprov + "; stationary std of the OU drift, prior range 0-10")
-    written = ""
-    if opt("write_params", False):
-        if fixed:
-            raise UsageError("--write-params with --set would store a point of the uncertainty set as the nominal fit")
-        path = PARAMS_DIR / "default.yaml"
-        write_params(path, fitted)
-        written = str(path)
-    return {"fitted": {k: v[0] for k, v in fitted.items()}, "provenance": {k: v[1] for k, v in fitted.items()},
-            "fixed": {f"{s}.{k}": v for (s, k), v in fixed.items()}, "mechanics": mech, "fn_channel": fn,
-            "beta_interval": betas,
-            "vibration": vib, "electrodes": el, "targets": rows, "figure": figure, "params_written": written, "budget": settings.budget,
-            "all_within": all(r["ok"] for r in rows)}
+    return fitted
 
 
 def render(results: dict) -> dict:
