@@ -6,8 +6,9 @@ import pytest
 
 from incipient_slip import control
 from incipient_slip.cli import main
-from incipient_slip.experiments.stabilization import (TABLE_METHODS, aggregate, make_specs, materials,
-                                                      run_score, t_test_p)
+from incipient_slip.experiments.stabilization import make_specs
+from incipient_slip.experiments.stabilization.table import (TABLE_METHODS, aggregate, materials, run_score,
+                                                            t_test_p)
 from incipient_slip.messages import METHODS
 
 
@@ -57,7 +58,7 @@ def test_aggregate_and_t_test():
 def test_the_sweeps_reading_names_a_paper_label_row_that_holds():
     """With the 2026-11-28 refit the pseudo-label injection holds 2 of 3 at s_d 0.1; the reading
     listed the other labels' rows only and so said nothing of it."""
-    from incipient_slip.experiments.stabilization import render_sweep
+    from incipient_slip.experiments.stabilization.report import render_sweep
     row = lambda ok: {"success_rate": ok, "steps_mean": 450.0, "fn_mean": 2.0, "tracking_error": 0.1}
     sweep = {"runs": 3, "k": 2.0,
              "rows": {"injection": {"0.1": row(0.67), "0.3": row(0.0)}, "e19": {"0.1": row(0.0), "0.3": row(0.0)}},

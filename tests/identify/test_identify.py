@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 
 from incipient_slip import identify
 from incipient_slip.experiments import identification as idn
-from incipient_slip.experiments import validation
+from incipient_slip.experiments.validation import overlays as rig_overlays
 from incipient_slip.sim.scene import SceneError, apply_overlay, load_overlay, load_params
 
 LAUNCH = Path(__file__).parents[2] / "launch" / "identify.yaml"
@@ -133,7 +133,7 @@ def test_the_overlay_goes_back_into_the_params_and_predicts_points(tmp_path):
     assert params["materials"]["petg"]["mu_identified"] == pytest.approx(results["stiffness"]["mu"])
     from incipient_slip.sim.feasibility import material_mu
     assert material_mu(params, "petg") == pytest.approx(results["stiffness"]["mu"])
-    points = validation.overlay_points(doc)
+    points = rig_overlays.overlay_points(doc)
     assert "identified" in points and len(points) == 1 + 2 * 6     # 6 entries with intervals
     low = points[next(n for n in points if n.startswith("pre_slip.bulk_stiffening_exponent low"))]
     assert low["pre_slip"]["bulk_stiffening_exponent"] == pytest.approx(results["stiffness"]["beta_interval"][0])
@@ -163,7 +163,7 @@ def test_a_two_level_plan_writes_values_without_intervals_that_validation_takes(
     k_b = doc["pre_slip"]["bulk_shear_n_per_mm"]
     assert "interval" not in k_b and identify.UNBOUNDED in k_b["source"]
     assert "interval" not in doc["pre_slip"]["bulk_stiffening_exponent"]
-    points = validation.overlay_points(doc)
+    points = rig_overlays.overlay_points(doc)
     assert not [n for n in points if n.startswith("pre_slip.")] and "identified" in points
 
 
@@ -306,10 +306,10 @@ def test_overlays_of_several_materials_merge_into_one_rig(tmp_path):
         records, results = idn.identify_sim(idn.scene_with(idn.hidden_set(seed), material), material, seed,
                                             identify.Plan(protocols=("stiffness",)))
         overlays.append(load_overlay(identify.write_outputs(results, records, tmp_path / material)["overlay"]))
-    doc = validation.merge_overlays(overlays)
+    doc = rig_overlays.merge_overlays(overlays)
     assert set(doc["materials"]) == {"pla", "tpu"} and doc["provenance"]["material"] == "pla, tpu"
     assert doc["pre_slip"] == overlays[-1]["pre_slip"]
-    points = validation.overlay_points(doc)
+    points = rig_overlays.overlay_points(doc)
     assert any(n.startswith("pla.mu_identified") for n in points) and any(n.startswith("tpu.mu_identified") for n in points)
 
 
