@@ -62,13 +62,15 @@ def test_recovery_holds_across_the_plausible_ranges(k, beta, lag, mu, seed):
     assert_recovered(hidden, results)
 
 
-@pytest.mark.xfail(strict=True, reason="known limit (docs/identification.md): the ramps read mu at the weakest "
-                   "period (~2 % low), which biases tau up at long lags and small r; this draw misses by 0.001 s")
-def test_known_limit_a_long_lag_draw_an_open_search_found():
+def test_known_limit_a_long_lag_draw_reads_the_lag_high():
+    """docs/identification.md, "A known limit": the ramps read mu at the weakest period, which biases
+    tau up at long lags and small r. An open search found this draw 0.001 s beyond the tolerance
+    (1.576 s for 1.375 s); on the refitted rig of 2026-11-28 it reads 1.475 s: inside, still high."""
     hidden = {"pre_slip.bulk_shear_n_per_mm": 0.5625, "pre_slip.bulk_stiffening_exponent": 1.1875,
               "stick_slip.friction_limit_lag_s": 1.375, "mu": 0.5}
     _, results = idn.identify_sim(idn.scene_with(hidden), "abs", 15456, identify.Plan(protocols=("stiffness", "lag")))
     assert_recovered(hidden, results)
+    assert results["lag"]["tau_s"] > hidden["stick_slip.friction_limit_lag_s"] + 0.05    # the bias is there
 
 
 def test_a_level_that_cannot_slide_within_the_travel_gives_stiffness_but_no_mu():
