@@ -201,7 +201,11 @@ def cmd_topic_pub(args) -> int:
     # a reader "on demand" (the viewer bridge) subscribes only while its own clients want the topic
     readers = [i.name for i in nodes if args.topic in i.subscribes
                or i.subscribes.get(ANY_TOPIC) not in (None, ON_DEMAND)]
-    kwargs = {"graph_dir": discovery.graph_dir(args.graph)}
+    from incipient_slip.graph.security import FORCE_IDENTITY, TOOL_IDENTITY
+    # over tcp the tools' key is read-only (security.py): only --force may write, and only topics
+    # the launch reads that no node of it writes (an operator's commands)
+    kwargs = {"graph_dir": discovery.graph_dir(args.graph),
+              "identity": FORCE_IDENTITY if args.force else TOOL_IDENTITY}
     with _OnePublisher(type(msg), args.topic, **kwargs) as node:
         if readers and not node.pub.wait_for_subscribers(len(readers), args.wait):
             if node.pub.subscriber_count() == 0:      # a message nobody subscribed to goes nowhere

@@ -31,8 +31,11 @@ def _node_argv(**params) -> list[str]:
 
 def _graph_kwargs(args) -> dict:
     """The graph directory of --graph / $SLIP_GRAPH_DIR / $SLIP_GRAPH, resolved here so that a bad
-    name is this command's one-line error (GraphNameError is a ValueError), not a node's."""
-    return {"graph_dir": discovery.graph_dir(getattr(args, "graph", None))}
+    name is this command's one-line error (GraphNameError is a ValueError), not a node's; and
+    the tools' identity over tcp (security.py): read-only, or with --force the operator's."""
+    from incipient_slip.graph.security import FORCE_IDENTITY, TOOL_IDENTITY
+    return {"graph_dir": discovery.graph_dir(getattr(args, "graph", None)),
+            "identity": FORCE_IDENTITY if getattr(args, "force", False) else TOOL_IDENTITY}
 
 
 def _topic(text: str) -> str:
@@ -266,6 +269,9 @@ def register_bag(subparsers) -> None:
                    help="before playing, wait for N subscribers on each topic (default 1; 0: don't)")
     p.add_argument("--wait-timeout", type=float, default=3.0, metavar="S",
                    help="play anyway after S seconds of waiting (default 3)")
+    p.add_argument("--force", action="store_true", help="over tcp, publish with the tools' "
+                   "--force key (the topics a launch reads and none of its nodes writes); without "
+                   "it the tools' key is read-only and readers refuse what it sends")
     p.set_defaults(func=_guard(cmd_bag_play))
     p = bsub.add_parser(
         "info", help="topics, types, counts, duration and rates of a recording; for a damaged "
