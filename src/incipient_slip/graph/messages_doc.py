@@ -256,11 +256,12 @@ endpoint refuses a connection (no listener on the ipc socket, or the socket file
 when the path would exceed {discovery._MAX_IPC_PATH} bytes (a Unix socket path holds 108; a node refuses
 to start when even the short path is too long: set `${discovery.GRAPH_DIR_ENV}` to a shorter
 directory). With `${discovery.TRANSPORT_ENV}=tcp` a node binds `tcp://127.0.0.1:<random port>`
-instead, and every socket uses ZeroMQ's CURVE mechanism with the graph's key pair: the XPUB is a
-CURVE server (the graph's secret key; ZAP admits only clients with the graph's public key), the
-SUB a CURVE client holding the graph's key pair with the graph's public key as server key. The
-keys are Z85 text in ZeroMQ's certificate format (`public-key = "..."`, `secret-key = "..."`) in
-`<graph dir>/curve.key` (mode 0600) or the file `$SLIP_CURVE_KEYS` names. Plain TCP is
+instead, and every socket uses ZeroMQ's CURVE mechanism with the node's own key pair: the XPUB
+is a CURVE server (ZAP admits only the public keys of the permissions file a launch writes), the
+SUB a CURVE client that pins each publisher's public key as the server key. The keys are Z85
+text in ZeroMQ's certificate format (`public-key = "..."`, `secret-key = "..."`) in
+`<graph dir>/keys/<name>.key_secret` (mode 0600) or the keystore `$SLIP_KEYSTORE` names
+(docs/graph.md, "Keys and permissions"). Plain TCP is
 `${discovery.TRANSPORT_ENV}=tcp-insecure`.
 """
 
