@@ -254,9 +254,11 @@ def run_node(node_class: type[Node], argv: list[str] | None = None, **kwargs) ->
         return EXIT_USAGE
     node = None
     signal_code = 0 if node_class.SIGNAL_ENDS_NORMALLY else None
+    early = []      # a signal that came while the node was being built (it may be announced already)
 
     def on_signal(signum, frame):
         if node is None:
+            early.append(signum)
             raise KeyboardInterrupt
         if node.stopping:   # second signal: the user means it
             raise KeyboardInterrupt
@@ -279,7 +281,9 @@ def run_node(node_class: type[Node], argv: list[str] | None = None, **kwargs) ->
     except KeyboardInterrupt:
         if node is not None and node.exit_code:
             return node.exit_code
-        return EXIT_INTERRUPTED if signal_code is None else signal_code
+        if signal_code is not None:
+            return signal_code
+        return EXIT_SIGNAL_BASE + early[0] if early else EXIT_INTERRUPTED
     except Exception:
         traceback.print_exc()
         return EXIT_FAILURE
