@@ -91,26 +91,32 @@ def cmd_keys_init(args) -> int:
     return 0
 
 
+_HELP = "the per-node CURVE keys and the permissions file of a graph over tcp"
+_DESCRIPTION = ("SLIP_TRANSPORT=tcp gives every node a CURVE key pair in the graph's keystore "
+                "(<graph dir>/keys, or $SLIP_KEYSTORE) and enforces the permissions file a launch "
+                "writes there. See docs/graph.md, 'Keys and permissions'.")
+# (tool, help, its arguments (name or flag, add_argument keywords), handler)
+_TOOLS = (
+    ("list", "identities, public keys and permissions",
+     [("--json", dict(action="store_true", help="one JSON object"))], cmd_keys_list),
+    ("rotate", "give identities new key pairs (running nodes refuse the old ones at once; a node "
+     "holding one must be restarted)",
+     [("names", dict(nargs="+", metavar="NAME", help="a node name, or slip / slip-force (the tools)"))],
+     cmd_keys_rotate),
+    ("init", "write a launch's keys and permissions file without starting it (to copy the keystore "
+     "to other hosts)",
+     [("launch", dict(help="launch file: a path, or a name in launch/")),
+      ("args", dict(nargs="*", metavar="name:=value", help="launch argument values"))], cmd_keys_init),
+)
+
+
 def register(subparsers) -> None:
     """Adds `slip keys ...`."""
-    from incipient_slip.graph.tools import _graph_option, _guard
+    from incipient_slip.graph.tools import _graph_option, _guard, command_group
     graph = _graph_option()
-    keys = subparsers.add_parser(
-        "keys", help="the per-node CURVE keys and the permissions file of a graph over tcp",
-        description="SLIP_TRANSPORT=tcp gives every node a CURVE key pair in the graph's keystore "
-        "(<graph dir>/keys, or $SLIP_KEYSTORE) and enforces the permissions file a launch writes "
-        "there. See docs/graph.md, 'Keys and permissions'.")
-    ksub = keys.add_subparsers(dest="tool", metavar="TOOL", required=True)
-    p = ksub.add_parser("list", parents=[graph], help="identities, public keys and permissions")
-    p.add_argument("--json", action="store_true", help="one JSON object")
-    p.set_defaults(func=_guard(cmd_keys_list))
-    p = ksub.add_parser("rotate", parents=[graph], help="give identities new key pairs (running "
-                        "nodes refuse the old ones at once; a node holding one must be restarted)")
-    p.add_argument("names", nargs="+", metavar="NAME", help="a node name, or slip / slip-force (the tools)")
-    p.set_defaults(func=_guard(cmd_keys_rotate))
-    p = ksub.add_parser("init", parents=[graph], help="write a launch's keys and permissions file "
-                        "without starting it (to copy the keystore to other hosts)")
-    p.add_argument("launch", help="launch file: a path, or a name in launch/")
-    p.add_argument("args", nargs="*", metavar="name:=value", help="launch argument values")
-    p.set_defaults(func=_guard(cmd_keys_init))
-
+    ksub = command_group(subparsers, "keys", help=_HELP, description=_DESCRIPTION)
+    for tool, text, arguments, handler in _TOOLS:
+        p = ksub.add_parser(tool, parents=[graph], help=text)
+        for name, options in arguments:
+            p.add_argument(name, **options)
+        p.set_defaults(func=_guard(handler))

@@ -200,11 +200,15 @@ def _graph_option() -> argparse.ArgumentParser:
     return graph
 
 
+def command_group(subparsers, word: str, **parser_kw):
+    """`slip WORD TOOL ...`: the subparsers of WORD's tools (TOOL required)."""
+    return subparsers.add_parser(word, **parser_kw).add_subparsers(dest="tool", metavar="TOOL", required=True)
+
+
 def register_topic(subparsers) -> None:
     """Adds `slip topic ...` and `slip node ...` (light: nothing of numpy or zmq is imported)."""
     graph = _graph_option()
-    topic = subparsers.add_parser("topic", help="look at the topics of a running graph")
-    tsub = topic.add_subparsers(dest="tool", metavar="TOOL", required=True)
+    tsub = command_group(subparsers, "topic", help="look at the topics of a running graph")
     p = tsub.add_parser("list", parents=[graph], help="topics being published now, types and rates")
     p.add_argument("--duration", type=float, default=1.0, metavar="S",
                    help="listen this long to measure rates (default 1 s)")
@@ -231,12 +235,11 @@ def register_bag(subparsers) -> None:
     from incipient_slip.graph.bag import FLUSH_S
 
     graph = _graph_option()
-    bag = subparsers.add_parser(
-        "bag", help="record, play, inspect, recover and export MCAP recordings",
+    bsub = command_group(
+        subparsers, "bag", help="record, play, inspect, recover and export MCAP recordings",
         description="Recordings are MCAP files with one msgpack channel per topic, each with a "
         "JSON schema (PlotJuggler opens them as they are; Foxglove and Lichtblick open the "
         "output of 'slip bag export --foxglove'). See docs/tools.md.")
-    bsub = bag.add_subparsers(dest="tool", metavar="TOOL", required=True)
     p = bsub.add_parser(
         "record", parents=[graph], help="record topics (all if none) to an MCAP file until "
         "Ctrl-C/SIGTERM",
