@@ -224,3 +224,11 @@ def test_the_tools_key_is_read_only_unless_force(tcp):
         pubs[1].publish(M.PztCommand(enabled=True))
         out, err = echo.communicate(timeout=60)
         assert echo.returncode == 0 and json.loads(out)["enabled"] is True, err
+
+
+def test_slip_topic_pub_says_when_the_tools_key_may_not_publish(tcp):
+    for extra, expect in (([], "pass --force"), (["--force"], "(slip-force) may not publish")):
+        done = subprocess.run([sys.executable, "-m", "incipient_slip.cli", "topic", "pub", M.SlipEstimate.TOPIC,
+                               "{stick_ratio: 0.3, valid: true}", *extra], env=tcp.env,
+                              capture_output=True, text=True, timeout=60)
+        assert done.returncode == 2 and expect in done.stderr, done.stderr
