@@ -232,3 +232,24 @@ def test_slip_topic_pub_says_when_the_tools_key_may_not_publish(tcp):
                                "{stick_ratio: 0.3, valid: true}", *extra], env=tcp.env,
                               capture_output=True, text=True, timeout=60)
         assert done.returncode == 2 and expect in done.stderr, done.stderr
+
+
+def test_a_launch_over_tcp_writes_its_permissions_and_its_rig_refuses_a_forger_with_a_stolen_key(tcp):
+    """The real stabilize.yaml over tcp, with a forger already running that holds the estimator's
+    key and calls itself grip_controller: its 99 kPa commands and its hello (which would let
+    rig_sim start before the real grip_controller listens) are refused by key; the run succeeds."""
+    forger = _forger(tcp, "estimator")
+    launch = tcp.spawn(["python", "-m", "incipient_slip.graph.launch", "stabilize.yaml", "steps:=12",
+                        "quiet:=true", f"summary:={tcp.dir}/summary.json"], text=True)
+    out, err = launch.communicate(timeout=240)
+    forger.kill()
+    assert launch.returncode == 0, err[-3000:]
+    assert (f"[rig_sim] WARNING: messages from grip_controller (pid {forger.pid}) refused: it sent "
+            f"/grip/command, which its key (identity estimator) may not publish") in err
+    assert "[rig_sim] WARNING: a subscriber with the key of estimator said it is grip_controller" in err
+    written = json.loads((tcp.store / "permissions.json").read_text())
+    assert written["written_by"].startswith("launch ") and written["nodes"]["rig_sim"]["subscribe"] == [
+        "/actuator/command", "/grip/command", "/pzt/command", "/run/event"]
+    for name in ("rig_sim", "estimator", "grip_controller", "supervisor"):
+        assert (tcp.store / f"{name}.key_secret").stat().st_mode & 0o777 == 0o600
+    assert json.loads((tcp.dir / "summary.json").read_text())["outcome"] == "success"

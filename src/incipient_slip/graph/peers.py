@@ -93,6 +93,7 @@ class Peers:
         self._poller = zmq.Poller()
         self._subscribed: dict[bytes, int] = {}     # prefix -> times subscribed, in order made
         self.refused_messages = 0
+        self.refused_hellos = 0        # over tcp: hellos naming a node whose key the sender lacks
         self._info = discovery.NodeInfo(self.name, os.getpid(), endpoint, started_ns=time.time_ns(),
                                         pidns=discovery.namespace("pid"), netns=discovery.namespace("net"),
                                         params=dict(self.params),   # for `slip param`
@@ -364,14 +365,21 @@ class Peers:
 
     def _drain_xpub(self) -> None:
         counts = self._sub_counts
+        keyed = self._keyring is not None
         while True:
             try:
-                msg = self._xpub.recv(zmq.NOBLOCK)
+                if keyed:       # over tcp the frame carries the subscriber's key (ZAP's User-Id)
+                    frame = self._xpub.recv(zmq.NOBLOCK, copy=False)
+                    msg = frame.bytes
+                else:
+                    msg = self._xpub.recv(zmq.NOBLOCK)
             except zmq.Again:
                 return
             if not msg:
                 continue
             prefix = msg[1:]
+            if keyed and prefix.startswith(HELLO) and not self._hello_is_its_own(frame, prefix, msg[0] == 1):
+                continue
             if msg[0] == 1:
                 counts[prefix] = counts.get(prefix, 0) + 1
                 for pub in self._latched:
@@ -379,6 +387,29 @@ class Peers:
                         pub._send(pub.last)
             elif msg[0] == 0:
                 counts[prefix] = max(0, counts.get(prefix, 0) - 1)
+
+    def _hello_is_its_own(self, frame: zmq.Frame, prefix: bytes, subscribe: bool) -> bool:
+        """Over tcp, whether a hello (or its withdrawal) naming a node with a key came from that
+        key: a process with another key cannot answer for a reader this node waits for (it would
+        start before the reader listens). A name without a key (a tool's) is taken as it is, and
+        so is a withdrawal ZeroMQ makes when a connection ends (it carries no key)."""
+        name = prefix[len(HELLO):].decode(errors="replace")
+        expected = self._keyring.key_of(name)
+        if expected is None:
+            return True
+        try:
+            key = frame.get("User-Id").encode()
+        except zmq.ZMQError:
+            return not subscribe
+        if key == expected:
+            return True
+        if not subscribe:
+            return False
+        self.refused_hellos += 1
+        self.warn(throttle_s=60.0, key=("hello", name, key),
+                  text=f"a subscriber with the key of {', '.join(self._keyring.names_of(key)) or 'no known identity'} "
+                       f"said it is {name}: not counted as {name}'s subscription")
+        return False
 
     def _subscribers_of(self, frame: bytes) -> int:
         return sum(n for prefix, n in self._sub_counts.items() if frame.startswith(prefix))
