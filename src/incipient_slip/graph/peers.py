@@ -2,6 +2,11 @@
 publishers it reads (only to the launch's writers of its inputs), the hello handshake by which a
 source knows its readers are subscribed, and the subscription news its XPUB reports.
 
+Over tcp (security.py) each connection pins the public key of the identity its publisher
+announces, so the key, not the name, is the publisher's identity: with a permissions file a
+message is delivered only if that key may publish its topic, and a hello counts only from the
+key of the node it names.
+
 `Peers` is a base of `runtime.Node` and uses its sockets and tables.
 """
 from __future__ import annotations
