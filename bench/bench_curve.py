@@ -13,6 +13,10 @@ both alike.
   frames, divided by FRAMES: median and min..max of the repeats.
 
 The last line is `curve/plain ratios: latency median X.XX, cpu send X.XX, cpu receive X.XX`.
+
+`--permissions`: the tcp graph gets a permissions file (as a launch writes one) naming the two
+nodes and their topics, so the receiver has a SUB per publisher and checks each topic's key
+(security.py): the cost of per-node identity against the keystore-only tcp of the default.
 """
 from __future__ import annotations
 
@@ -71,6 +75,14 @@ def main() -> int:
     paths = {}
     for mode in MODES:
         gdir = tempfile.mkdtemp(prefix="bc")
+        if mode == "tcp" and "--permissions" in sys.argv[1:]:
+            from pathlib import Path
+
+            from incipient_slip.graph import security
+            topics = [BiotacPac.TOPIC, RunEvent.TOPIC]
+            security.write_permissions(security.keystore(Path(gdir)), {
+                "bench_rx": {"publish": [], "subscribe": topics},
+                "bench_tx_tcp": {"publish": topics, "subscribe": []}}, "bench_curve --permissions")
         env = dict(os.environ, SLIP_GRAPH_DIR=gdir, SLIP_TRANSPORT=mode)
         rx = subprocess.Popen([sys.executable, __file__, "--rx"], env=env, stdout=subprocess.PIPE,
                               stderr=subprocess.DEVNULL, text=True)

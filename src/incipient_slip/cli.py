@@ -25,6 +25,7 @@ EXIT_BROKEN_PIPE = 128 + 13    # what a shell reports for a tool ended by SIGPIP
 COMMANDS = {
     "incipient_slip.graph.tools:register_topic": ("topic", "node", "param"),
     "incipient_slip.graph.tools:register_bag": ("bag",),
+    "incipient_slip.graph.keys": ("keys",),
     "incipient_slip.lab.cli": ("dataset", "collect"),
     "incipient_slip.models.cli": ("train", "evaluate"),
     "incipient_slip.experiments.cli": ("reproduce",),

@@ -176,14 +176,15 @@ def test_estimator_killed_mid_run_ends_the_launch_at_once_naming_it_and_leaves_n
 
 @pytest.mark.timeout(60)
 def test_a_bad_model_file_ends_the_launch_at_once_with_2_and_the_estimators_line(graph, tmp_path):
-    """Used to run on for ~13 s and end as a "fault" with the cause buried in the log."""
+    """Used to run on for ~13 s and end as a "fault" with the cause buried in the log; then ended
+    with the estimator's line once the graph was up; now refused before any node starts."""
     bad = tmp_path / "model.npz"
     bad.write_bytes(b"not a model")
     proc = graph.spawn(launch_cmd(f"model:={bad}", f"summary:={tmp_path / 'run.json'}"))
     rc, out, err = finish(proc, timeout=40)
     last = err.rstrip().splitlines()[-1]
-    assert rc == 2 and last.startswith("[launch] launch ends with code 2: required node estimator") \
-        and str(bad) in last, err[-2000:]
+    assert rc == 2 and last.startswith("launch: error:") and "node 'estimator'" in last \
+        and str(bad) in last and "starting" not in err, err[-2000:]
 
 
 @pytest.mark.timeout(60)

@@ -144,7 +144,7 @@ def test_pdc_and_press_gain_recover_the_hidden_finger(emulated):
     assert abs(other - want) / want > 0.15
 
     # the ur5 node reads it through rig_config
-    from incipient_slip.nodes.rig_check import apply_rig_config
+    from incipient_slip.devices.rig_config import apply_rig_config
 
     class Stub:
         name = "ur5"

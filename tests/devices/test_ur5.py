@@ -15,7 +15,7 @@ import time
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from incipient_slip.nodes.ur5 import PressLoop, explain
+from incipient_slip.devices.ur5 import PressLoop, explain
 from waiting import spin_until
 
 pytestmark = pytest.mark.timeout(90)
@@ -54,7 +54,7 @@ def test_a_receive_interface_that_lags_the_control_interface_is_not_taken_for_a_
     import socket
     import types
 
-    from incipient_slip.nodes import ur5
+    from incipient_slip.devices import ur5
 
     class Receive:
         def __init__(self, *args):

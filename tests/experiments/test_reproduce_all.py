@@ -34,12 +34,13 @@ def test_list_shows_full_and_quick_time_of_every_experiment(capsys):
 
 
 def test_quick_budgets_run_the_full_length_loops():
-    from incipient_slip.experiments import stabilization, validation
+    from incipient_slip.experiments import stabilization
+    from incipient_slip.experiments.validation import planning, spec
     quick = Settings(budget="quick", progress=False)
     opts = stabilization.options(quick)
     assert opts["steps"] == control.MAX_STEPS and opts["runs"] < stabilization.options(Settings(budget="full"))["runs"]
-    b = validation.budget(quick)
-    assert b["steps"] == control.MAX_STEPS and set(b["points"]) <= set(validation.POINTS)
+    b = planning.budget(quick)
+    assert b["steps"] == control.MAX_STEPS and set(b["points"]) <= set(spec.POINTS)
     assert all(hasattr(load(n), "QUICK") for n in EXPERIMENTS)
 
 
@@ -76,8 +77,8 @@ def test_all_quick_runs_one_experiment_logs_it_and_records_its_time(tmp_path, ca
 def test_an_identified_parameter_without_an_interval_adds_no_point():
     """An overlay entry whose interval is its value (or one end of it at the value) would repeat the
     identified rig's Table under another name: only distinct ends become points."""
-    from incipient_slip.experiments import validation
+    from incipient_slip.experiments.validation import overlays
     doc = {"provenance": {},
            "pre_slip": {"bulk_stiffening_exponent": {"value": 1.06, "unit": "-", "source": "x", "interval": [1.06, 1.06]},
                         "bulk_shear_n_per_mm": {"value": 0.5, "unit": "N/mm", "source": "x", "interval": [0.5, 0.6]}}}
-    assert sorted(validation.overlay_points(doc)) == ["identified", "pre_slip.bulk_shear_n_per_mm high 0.6"]
+    assert sorted(overlays.overlay_points(doc)) == ["identified", "pre_slip.bulk_shear_n_per_mm high 0.6"]

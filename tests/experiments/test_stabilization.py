@@ -6,8 +6,9 @@ import pytest
 
 from incipient_slip import control
 from incipient_slip.cli import main
-from incipient_slip.experiments.stabilization import (TABLE_METHODS, aggregate, make_specs, materials,
-                                                      run_score, t_test_p)
+from incipient_slip.experiments.stabilization import make_specs
+from incipient_slip.experiments.stabilization.table import (TABLE_METHODS, aggregate, materials, run_score,
+                                                            t_test_p)
 from incipient_slip.messages import METHODS
 
 
@@ -52,3 +53,17 @@ def test_aggregate_and_t_test():
     assert row["success_rate"] == 0.5 and row["outcomes"] == {"success": 2, "failure": 2, "fault": 0}
     assert t_test_p([1, 2, 3], [1, 2, 3]) == pytest.approx(1.0)
     assert t_test_p([1, 1.1, 0.9], [5, 5.1, 4.9]) < 0.01
+
+
+def test_the_sweeps_reading_names_a_paper_label_row_that_holds():
+    """With the 2026-11-28 refit the pseudo-label injection holds 2 of 3 at s_d 0.1; the reading
+    listed the other labels' rows only and so said nothing of it."""
+    from incipient_slip.experiments.stabilization.report import render_sweep
+    row = lambda ok: {"success_rate": ok, "steps_mean": 450.0, "fn_mean": 2.0, "tracking_error": 0.1}
+    sweep = {"runs": 3, "k": 2.0,
+             "rows": {"injection": {"0.1": row(0.67), "0.3": row(0.0)}, "e19": {"0.1": row(0.0), "0.3": row(0.0)}},
+             "labels": {"measured-ratio": {"injection": {"0.1": row(0.0), "0.3": row(1.0)}}}}
+    text = render_sweep(sweep)
+    assert "* injection (ours) (the paper’s label): holds in at least half the runs at s_d 0.1 of 0.1, 0.3." in text
+    assert "E19 (the paper" not in text and "no method succeeds" not in text
+    assert "* injection (ours), measured-ratio label: holds in at least half the runs at s_d 0.3 of 0.1, 0.3." in text

@@ -1,4 +1,5 @@
-"""SLIP_TRANSPORT=tcp: CURVE authentication and encryption with the graph's key pair."""
+"""SLIP_TRANSPORT=tcp: CURVE authentication and encryption with each node's key pair (the
+permissions file and identity by key: tests/graph/test_node_keys.py)."""
 from __future__ import annotations
 
 import json
@@ -17,7 +18,7 @@ from incipient_slip.graph.runtime import Node
 @pytest.fixture
 def tcp(graph, monkeypatch):
     monkeypatch.setenv("SLIP_TRANSPORT", "tcp")
-    monkeypatch.delenv("SLIP_CURVE_KEYS", raising=False)
+    monkeypatch.delenv("SLIP_KEYSTORE", raising=False)
     return graph
 
 
@@ -27,12 +28,13 @@ def test_a_process_without_the_graph_key_can_neither_read_nor_publish(tcp, probe
         pub = w.create_publisher(M.RunEvent)
         got = []
         r.create_subscription(M.RunEvent, got.append)
-        # two readers without the graph's secret key: plain TCP, and CURVE with a key of their own
-        # (knowing the graph's public key, as anyone who saw it could)
+        # two readers without a key of the graph: plain TCP, and CURVE with a key of their own
+        # (knowing the writer's public key, as anyone who saw it could)
         plain = ctx.socket(zmq.SUB)
         stranger = ctx.socket(zmq.SUB)
         stranger.curve_publickey, stranger.curve_secretkey = zmq.curve_keypair()
-        stranger.curve_serverkey = security.graph_keys(tcp.dir)[0]
+        store = security.keystore(tcp.dir)
+        stranger.curve_serverkey = security.node_keys(store, "w")[0]
         for sock in (plain, stranger):
             sock.setsockopt(zmq.SUBSCRIBE, b"")
             sock.connect(w._info.endpoint)
@@ -46,14 +48,16 @@ def test_a_process_without_the_graph_key_can_neither_read_nor_publish(tcp, probe
         probe.until(lambda: pub.subscriber_count() >= 2 or getattr(w, "refused_clients", 0) >= 1, 30, nodes=[w, r],
                     what="the strangers subscribed or refused")
         assert pub.wait_for_subscribers(1, 30)
-        probe.until(lambda: r._discovery.endpoints >= {f"tcp://127.0.0.1:{port}"}, 30, nodes=[w, r])
+        # the rogue has no key in the keystore: no node connects to it
+        probe.until(lambda: ("rogue", os.getpid()) in r.refused_writers, 30, nodes=[w, r])
         for i in range(5):
             pub.publish(M.RunEvent(kind="step", step=i))
             rogue.send_multipart([M.topic_frame(M.RunEvent.TOPIC), M.encode(M.RunEvent(kind="fault", detail="forged"))])
         probe.until(lambda: len(got) >= 5, 30, nodes=[w, r], what="the graph's own messages")
         assert [m.kind for m in got] == ["step"] * 5 and pub.subscriber_count() == 1
         assert w.refused_clients >= 1
-        assert (tcp.dir / security.KEY_FILE).stat().st_mode & 0o777 == 0o600
+        assert (store / "w.key_secret").stat().st_mode & 0o777 == 0o600
+        assert store.stat().st_mode & 0o777 == 0o700
         # a bound, not a wait for an event: nothing may arrive (with plain TCP it would be there)
         for sock in (plain, stranger):
             assert not sock.poll(500), "a reader without the key received a message"
@@ -63,8 +67,8 @@ def test_a_process_without_the_graph_key_can_neither_read_nor_publish(tcp, probe
 
 
 def test_a_key_file_others_can_read_is_refused(tcp):
-    key = tcp.dir / security.KEY_FILE
-    security.graph_keys(tcp.dir)
+    security.node_keys(security.keystore(tcp.dir), "a")
+    key = tcp.dir / "keys" / "a.key_secret"
     key.chmod(0o644)
     with pytest.raises(security.TransportError, match="chmod 600"):
         Node("a")

@@ -313,3 +313,18 @@ def test_a_bad_transport_is_refused_before_any_node_starts(monkeypatch, capsys):
     assert main(["stabilize.yaml"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("launch: error: $SLIP_TRANSPORT='udp'") and "starting" not in err
+
+
+def test_a_missing_or_wrong_model_is_refused_before_any_node_starts_naming_the_file(tmp_path, capsys):
+    """The estimator loaded its model only once started: the rig and the controller were up first."""
+    from incipient_slip.graph.launch.resolve import check_node_inputs, load
+    from incipient_slip.paths import model_dir
+    missing = tmp_path / "missing.npz"
+    with pytest.raises(LaunchError, match=rf"stabilize.yaml:\d+: node 'estimator': .*missing.npz"):
+        check_node_inputs(load("stabilize.yaml", {"model": str(missing)}))
+    assert main(["stabilize.yaml", f"model:={missing}"]) == 2
+    err = capsys.readouterr().err
+    assert str(missing) in err and "starting" not in err
+    e19 = model_dir() / "e19.npz"                     # a model of another method
+    with pytest.raises(LaunchError, match=r"node 'estimator': .*e19"):
+        check_node_inputs(load("stabilize.yaml", {"model": str(e19)}))

@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 
 from incipient_slip import identify
 from incipient_slip.experiments import identification as idn
-from incipient_slip.experiments import validation
+from incipient_slip.experiments.validation import overlays as rig_overlays
 from incipient_slip.sim.scene import SceneError, apply_overlay, load_overlay, load_params
 
 LAUNCH = Path(__file__).parents[2] / "launch" / "identify.yaml"
@@ -62,13 +62,15 @@ def test_recovery_holds_across_the_plausible_ranges(k, beta, lag, mu, seed):
     assert_recovered(hidden, results)
 
 
-@pytest.mark.xfail(strict=True, reason="known limit (docs/identification.md): the ramps read mu at the weakest "
-                   "period (~2 % low), which biases tau up at long lags and small r; this draw misses by 0.001 s")
-def test_known_limit_a_long_lag_draw_an_open_search_found():
+def test_known_limit_a_long_lag_draw_reads_the_lag_high():
+    """docs/identification.md, "A known limit": the ramps read mu at the weakest period, which biases
+    tau up at long lags and small r. An open search found this draw 0.001 s beyond the tolerance
+    (1.576 s for 1.375 s); on the refitted rig of 2026-11-28 it reads 1.475 s: inside, still high."""
     hidden = {"pre_slip.bulk_shear_n_per_mm": 0.5625, "pre_slip.bulk_stiffening_exponent": 1.1875,
               "stick_slip.friction_limit_lag_s": 1.375, "mu": 0.5}
     _, results = idn.identify_sim(idn.scene_with(hidden), "abs", 15456, identify.Plan(protocols=("stiffness", "lag")))
     assert_recovered(hidden, results)
+    assert results["lag"]["tau_s"] > hidden["stick_slip.friction_limit_lag_s"] + 0.05    # the bias is there
 
 
 def test_a_level_that_cannot_slide_within_the_travel_gives_stiffness_but_no_mu():
@@ -133,7 +135,7 @@ def test_the_overlay_goes_back_into_the_params_and_predicts_points(tmp_path):
     assert params["materials"]["petg"]["mu_identified"] == pytest.approx(results["stiffness"]["mu"])
     from incipient_slip.sim.feasibility import material_mu
     assert material_mu(params, "petg") == pytest.approx(results["stiffness"]["mu"])
-    points = validation.overlay_points(doc)
+    points = rig_overlays.overlay_points(doc)
     assert "identified" in points and len(points) == 1 + 2 * 6     # 6 entries with intervals
     low = points[next(n for n in points if n.startswith("pre_slip.bulk_stiffening_exponent low"))]
     assert low["pre_slip"]["bulk_stiffening_exponent"] == pytest.approx(results["stiffness"]["beta_interval"][0])
@@ -163,7 +165,7 @@ def test_a_two_level_plan_writes_values_without_intervals_that_validation_takes(
     k_b = doc["pre_slip"]["bulk_shear_n_per_mm"]
     assert "interval" not in k_b and identify.UNBOUNDED in k_b["source"]
     assert "interval" not in doc["pre_slip"]["bulk_stiffening_exponent"]
-    points = validation.overlay_points(doc)
+    points = rig_overlays.overlay_points(doc)
     assert not [n for n in points if n.startswith("pre_slip.")] and "identified" in points
 
 
@@ -306,10 +308,10 @@ def test_overlays_of_several_materials_merge_into_one_rig(tmp_path):
         records, results = idn.identify_sim(idn.scene_with(idn.hidden_set(seed), material), material, seed,
                                             identify.Plan(protocols=("stiffness",)))
         overlays.append(load_overlay(identify.write_outputs(results, records, tmp_path / material)["overlay"]))
-    doc = validation.merge_overlays(overlays)
+    doc = rig_overlays.merge_overlays(overlays)
     assert set(doc["materials"]) == {"pla", "tpu"} and doc["provenance"]["material"] == "pla, tpu"
     assert doc["pre_slip"] == overlays[-1]["pre_slip"]
-    points = validation.overlay_points(doc)
+    points = rig_overlays.overlay_points(doc)
     assert any(n.startswith("pla.mu_identified") for n in points) and any(n.startswith("tpu.mu_identified") for n in points)
 
 

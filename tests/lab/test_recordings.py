@@ -249,7 +249,10 @@ def test_ctrl_c_keeps_the_running_series_pending_and_a_rerun_collects_only_it(tm
     args = [sys.executable, "-m", "incipient_slip.cli", "collect", "--out", str(where), "--materials", "pla",
             "--series-per-material", "2", "--injection", "on", "--steps", "120", "--speed", "10"]
     try:
-        proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        # Ctrl-C as a terminal delivers it: a test run in the background (nohup, `&`) ignores SIGINT and
+        # its children would inherit that (then the SIGINT below was lost and series 1 ran to the end)
+        proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         for line in proc.stdout:                       # series 0 done, series 1 (6 s at 10x) running
             if line.startswith("[1/2]"):
                 break

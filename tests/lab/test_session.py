@@ -28,8 +28,12 @@ def test_a_ctrl_c_inside_popen_stops_the_launch_it_started(tmp_path, monkeypatch
 
     monkeypatch.setattr(session_mod.subprocess, "Popen", popen_then_ctrl_c)
     session = plan_session("sim", ["pla"], 1, seed=0, injection="on", steps=10)
-    with pytest.raises(KeyboardInterrupt):
-        run_session(session, tmp_path, log=lambda *_: None)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)   # as in `slip collect` (a test
+    try:                                                                  # worker may ignore SIGINT)
+        with pytest.raises(KeyboardInterrupt):
+            run_session(session, tmp_path, log=lambda *_: None)
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert len(started) == 1
     try:
         assert started[0].wait(timeout=20) is not None       # stopped, not orphaned

@@ -4,6 +4,12 @@ experiments -> nodes -> identify -> graph / models / sim / control (a package: l
 closers, clock) -> messages; `models/` never reads the
 simulator and `sim/` never imports learning or control. `cluster` (dask tasks) sits below sim,
 models and experiments and imports only the leaves. Imports inside functions count too.
+
+Inside two layers the modules are siblings, not layers: a node never imports another node (what two
+nodes share lives in devices/, control, models/ or graph/), and an experiment never imports another
+experiment (what two share is a module of experiments/ that is not one: settings, plots, runner,
+datasets, closed_loop, mechanics_fit, ...). An experiment is a module `experiments.EXPERIMENTS`
+registers, with its package's modules when it is a package.
 """
 import ast
 from pathlib import Path
@@ -35,6 +41,8 @@ ALLOWED = {
 # an upward import with its reason; keep this list short
 EXCEPTIONS = {
     ("graph.tools", "cli"): "`python -m incipient_slip.graph.tools` runs its commands through slip's main",
+    ("devices.rig_config", "graph.params"): "a device node's rig file section fills the node's declared params "
+                                            "(apply_rig_config: merge_params, ParamError)",
 }
 
 
@@ -135,3 +143,72 @@ def test_control_modules_point_down_inside_the_package():
         targets = {_known(m, known) for m in imports_of(name, known[name])}
         bad = {t for t in targets if t and t.startswith("control") and t != name} - CONTROL_ALLOWED[name]
         assert not bad, f"{name} imports {sorted(bad)}; inside control/ it may import {sorted(CONTROL_ALLOWED[name])}"
+
+
+# --- siblings: node -> node and experiment -> experiment -----------------------------------------
+
+# a sibling import with its reason; keep this list shorter still
+SIBLING_EXCEPTIONS = {
+    ("nodes.device_tools", "nodes.rig_check"): "`slip rig check` (not a node: the operator's commands for the "
+                                               "device nodes) runs the rig_check node once, in its own process",
+}
+
+def experiment_of(name: str) -> str | None:
+    """The registered experiment module `name` belongs to (itself, or a module of its package), else None."""
+    from incipient_slip.experiments import EXPERIMENTS
+
+    for module in EXPERIMENTS.values():
+        own = module[len("incipient_slip."):]
+        if name == own or name.startswith(own + "."):
+            return own
+    return None
+
+
+def sibling_imports(name: str, path: Path, known: dict) -> set[str]:
+    """Return the modules `name` imports that it must not: another node when it is in nodes/,
+    another experiment when it is in experiments/ (a shared module of experiments/, one that is
+    no experiment, imports no experiment at all: it loads them by name, `experiments.load`)."""
+    targets = {t for t in (_known(m, known) for m in imports_of(name, path)) if t}
+    if layer(name) == "nodes":
+        return {t for t in targets if layer(t) == "nodes" and t not in ("nodes", name)
+                and (name, t) not in SIBLING_EXCEPTIONS}
+    if layer(name) == "experiments":
+        own = experiment_of(name)
+        return {t for t in targets if experiment_of(t) not in (None, own)}
+    return set()
+
+
+@pytest.mark.parametrize("name", sorted(n for n in modules() if layer(n) in ("nodes", "experiments")))
+def test_no_node_imports_another_node_and_no_experiment_another_experiment(name):
+    known = modules()
+    bad = sibling_imports(name, known[name], known)
+    what = "a node may not import another node" if layer(name) == "nodes" else \
+        "an experiment (or a shared module of experiments/) may not import an experiment"
+    assert not bad, f"{name} imports {sorted(bad)}: {what}; move what they share below them"
+
+
+def test_the_sibling_rule_sees_a_node_or_an_experiment_importing_its_sibling(tmp_path):
+    known = modules()
+    node = tmp_path / "ur5.py"
+    node.write_text("from incipient_slip.nodes.rig_check import EXIT_MISSING\n")
+    assert sibling_imports("nodes.ur5", node, known) == {"nodes.rig_check"}
+    node.write_text("from incipient_slip.devices.rig_config import apply_rig_config\n")
+    assert sibling_imports("nodes.ur5", node, known) == set()
+    experiment = tmp_path / "identification.py"
+    experiment.write_text("def scene_with():\n    from .calibration import VIBRATION\n")
+    assert sibling_imports("experiments.identification", experiment, known) == {"experiments.calibration"}
+    experiment.write_text("from .validation.spec import POINTS\nfrom .settings import Settings\n")
+    assert sibling_imports("experiments.identification", experiment, known) == {"experiments.validation.spec"}
+    inside = tmp_path / "report.py"
+    inside.write_text("from .spec import LABELS\nfrom ..plots import pyplot\n")
+    assert sibling_imports("experiments.validation.report", inside, known) == set()
+    shared = tmp_path / "plots.py"
+    shared.write_text("from . import stabilization\n")
+    assert sibling_imports("experiments.plots", shared, known) == {"experiments.stabilization"}
+
+
+def test_every_registered_experiment_is_a_module_here():
+    from incipient_slip.experiments import EXPERIMENTS
+
+    known = modules()
+    assert all(m[len("incipient_slip."):] in known for m in EXPERIMENTS.values())

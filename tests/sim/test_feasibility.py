@@ -5,9 +5,8 @@ import math
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from incipient_slip.experiments.calibration import with_values
 from incipient_slip.sim.feasibility import end_load_travel_mm, material_mu, min_holding_force_kpa
-from incipient_slip.sim.scene import load_scene
+from incipient_slip.sim.scene import load_scene, with_values
 
 SCENE = load_scene("mechanics")
 

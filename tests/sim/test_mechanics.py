@@ -220,12 +220,13 @@ def test_the_committed_stage1_summary_comes_out_bit_for_bit():
     """The stage-1 summary at the committed fit (docs/figures/calibration_results.json), recomputed
     with the sizes and seed its provenance names, equals the committed one exactly. (A change of the
     physics fails this until the calibration is rerun and committed.)"""
-    from incipient_slip.experiments import calibration as cal
+    from incipient_slip.experiments import mechanics_fit
+    from incipient_slip.sim.scene import with_values
     res = json.loads((repo_root() / "docs" / "figures" / "calibration_results.json").read_text())
     prov = next(iter(res["provenance"].values()))
     m = re.search(r"seed (\d+), (\d+) collection series, (\d+) no-action runs per material", prov)
     assert m, f"the calibration's provenance no longer names its seed and sizes: {prov}"
     seed, n_series, runs = map(int, m.groups())
     values = {tuple(k.split(".")): v for k, v in res["mechanics"]["values"].items()}
-    summary = cal.mechanics_summary(cal.with_values(load_scene("paper"), values), n_series, runs, seed, 1)
+    summary = mechanics_fit.mechanics_summary(with_values(load_scene("paper"), values), n_series, runs, seed, 1)
     assert json.loads(json.dumps(summary)) == res["mechanics"]["summary"]

@@ -4,20 +4,21 @@ import pytest
 from incipient_slip.errors import UsageError
 
 from incipient_slip import control
-from incipient_slip.experiments import validation as val
+from incipient_slip.experiments import mechanics_fit, validation as val
+from incipient_slip.experiments.validation import merging, report, spec, tasks
 from incipient_slip.sim.scene import load_scene
 
 
 def test_no_action_keeps_the_initial_grip_and_runs_every_step():
     p = load_scene("mechanics").params
-    r = val.closed_loop("none", p, "pla", 3, None, 40)
+    r = tasks.closed_loop("none", p, "pla", 3, None, 40)
     assert r["steps"] == 40 and r["success"] is None and r["fn"] == control.DEFAULT_INITIAL_FORCE_KPA
 
 
 def test_oracle_loop_is_deterministic_and_ends_by_the_papers_rules():
     p = load_scene("mechanics").params
-    a = val.closed_loop("oracle", p, "nylon", 5, None, 120)
-    b = val.closed_loop("oracle", p, "nylon", 5, None, 120)
+    a = tasks.closed_loop("oracle", p, "nylon", 5, None, 120)
+    b = tasks.closed_loop("oracle", p, "nylon", 5, None, 120)
     assert a == b
     if a["success"]:
         assert a["steps"] == 120 and a["y"] <= control.FAILURE_TRAVEL_MM and a["fn"] < control.SAFETY_LIMIT_KPA
@@ -30,11 +31,11 @@ def test_oracle_loop_is_deterministic_and_ends_by_the_papers_rules():
 def test_a_run_past_the_travel_limit_goes_on_unless_stop_on_travel():
     # a weak grip on nylon lets y pass 1.5 mm long before 450 steps: the paper's protocol runs on
     p = load_scene("mechanics").params
-    full = val.closed_loop("none", p, "nylon", 1, None, 450)
+    full = tasks.closed_loop("none", p, "nylon", 1, None, 450)
     assert full["steps"] == 450 and full["y"] > control.FAILURE_TRAVEL_MM
     # s_d = 0 lowers the grip every period: the object slides past 1.5 mm and the force never nears 6 kPa
-    early = val.closed_loop("oracle", p, "nylon", 1, None, 450, s_d=0.0, stop_on_travel=True)
-    late = val.closed_loop("oracle", p, "nylon", 1, None, 450, s_d=0.0)
+    early = tasks.closed_loop("oracle", p, "nylon", 1, None, 450, s_d=0.0, stop_on_travel=True)
+    late = tasks.closed_loop("oracle", p, "nylon", 1, None, 450, s_d=0.0)
     assert early["end"] == "y" and early["steps"] < 450 and early["success"] is False
     assert late["steps"] == 450 and late["end"] == "y" and late["success"] is False
 
@@ -42,9 +43,9 @@ def test_a_run_past_the_travel_limit_goes_on_unless_stop_on_travel():
 def test_summary_and_render_label_the_simulated_rig():
     runs = [{"success": True, "end": "steps", "y": 1.0, "fn": 4.0, "steps": 450, "material": "pla"},
             {"success": False, "end": "y", "y": 2.0, "fn": 3.0, "steps": 100, "material": "abs"}]
-    s = val.summarize(runs)
+    s = merging.summarize(runs)
     assert s["success"] == 0.5 and s["y"] == pytest.approx(1.5) and s["steps"] == pytest.approx(275)
-    table = {m: s for m in val.TABLE_METHODS + ("oracle",)}
+    table = {m: s for m in spec.TABLE_METHODS + ("oracle",)}
     res = {"budget": "quick", "runs": 2, "series": 10, "steps": 450, "figure": "validation_success.png",
            "points": {"fitted": {"table": table, "consistent": True, "sweep_table": {},
                                  "fit": {"values": {"pre_slip.bulk_shear_n_per_mm": 0.2,
@@ -57,17 +58,17 @@ def test_summary_and_render_label_the_simulated_rig():
 
 
 def test_the_answer_has_a_row_per_label_and_counts_each_label_on_its_own_points():
-    held = val.summarize([{"success": True, "end": "steps", "y": 1.0, "fn": 4.0, "steps": 450, "material": "pla"}])
-    lost = val.summarize([{"success": False, "end": "F_N", "y": 0.5, "fn": 6.0, "steps": 300, "material": "pla"}])
+    held = merging.summarize([{"success": True, "end": "steps", "y": 1.0, "fn": 4.0, "steps": 450, "material": "pla"}])
+    lost = merging.summarize([{"success": False, "end": "F_N", "y": 0.5, "fn": 6.0, "steps": 300, "material": "pla"}])
     bias = [{"bin": "1.1-2 kPa", "mean": -0.01, "sd": 0.01, "n": 9}]
-    point = {"table": {m: held if m == "oracle" else lost for m in val.TABLE_METHODS + ("oracle",)},
+    point = {"table": {m: held if m == "oracle" else lost for m in spec.TABLE_METHODS + ("oracle",)},
              "consistent": True, "fit": {},
              "labels": {"pseudo": {"label_error_by_fn": [{"bin": "1.1-2 kPa", "mean": -0.12, "sd": 0.1, "n": 9}],
                                    "rmse": {"injection": 0.1}, "rmse_truth": {"injection": 0.4}},
                         "measured-ratio": {"label_error_by_fn": bias, "rmse": {"injection": 0.15},
                                            "rmse_truth": {"injection": 0.16},
-                                           "table": {m: held for m in val.LABEL_METHODS}}}}
-    text = val.render_answer({"runs": 10, "steps": 450, "points": {"fitted": point, "lag 1 s": point}})
+                                           "table": {m: held for m in spec.LABEL_METHODS}}}}
+    text = report.render_answer({"runs": 10, "steps": 450, "points": {"fitted": point, "lag 1 s": point}})
     assert "| lag 1 s | pseudo | 1.0 | 0.0 | 0.0 | 0.0 | 1.1-2 kPa -0.12 |" in text
     assert "| lag 1 s | measured-ratio | 1.0 | 1.0 | 1.0 | 1.0 | 1.1-2 kPa -0.01 |" in text
     assert "injection (pseudo) holds (success >= 0.8) at 0 of 2 points" in text
@@ -79,9 +80,9 @@ def test_the_answer_has_a_row_per_label_and_counts_each_label_on_its_own_points(
 
 def test_a_point_with_a_friction_lag_also_runs_the_label_with_that_lag_identified():
     params = load_scene("paper").params
-    assert list(val.label_rows(params)) == ["pseudo", "measured-ratio"]
+    assert list(tasks.label_rows(params)) == ["pseudo", "measured-ratio"]
     lagged = {**params, "stick_slip": {**params["stick_slip"], "friction_limit_lag_s": 0.5}}
-    rows = val.label_rows(lagged)
+    rows = tasks.label_rows(lagged)
     assert rows["measured-ratio, lag identified"].friction_lag_s == 0.5
 
 
@@ -114,15 +115,15 @@ def test_joint_set_runs_the_table_only_where_the_open_loop_refit_allows(tmp_path
     from dask.distributed import LocalCluster
     from incipient_slip.experiments.settings import Settings
 
-    monkeypatch.setattr(val, "JOINT", {"pre_slip.bulk_stiffening_exponent": (0.5,),
-                                       "stick_slip.friction_limit_lag_s": (0.0, 0.5),
-                                       "stick_slip.mu_spread_scale": (1.0,)})
-    monkeypatch.setattr(val.cal, "consistent_with_open_loop", lambda summ: summ["lag"] == 0.0)
-    real_summary = val.cal.mechanics_summary
+    monkeypatch.setattr(spec, "JOINT", {"pre_slip.bulk_stiffening_exponent": (0.5,),
+                                        "stick_slip.friction_limit_lag_s": (0.0, 0.5),
+                                        "stick_slip.mu_spread_scale": (1.0,)})
+    monkeypatch.setattr(mechanics_fit, "consistent_with_open_loop", lambda summ: summ["lag"] == 0.0)
+    real_summary = mechanics_fit.mechanics_summary
 
     def tagged(scene, *a, **k):
         return {**real_summary(scene, *a, **k), "lag": scene.params["stick_slip"]["friction_limit_lag_s"]}
-    monkeypatch.setattr(val.cal, "mechanics_summary", tagged)
+    monkeypatch.setattr(mechanics_fit, "mechanics_summary", tagged)
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster:
         opts = {"joint": True, "runs": 1, "series": 6, "steps": 3, "refits": ((4, 1, 1),),
                 "scheduler": cluster.scheduler_address}

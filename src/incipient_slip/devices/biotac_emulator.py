@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from incipient_slip.devices import biotac as bt
+from incipient_slip.devices.emulator import ThreadedEmulator
 from incipient_slip.messages import PAC_RATE_HZ, SLOW_RATE_HZ
 
 FAULT_KINDS = ("parity_flip", "error_word", "crc", "drop", "repeat", "counter_jump", "missing", "unplug")
@@ -338,7 +339,7 @@ class EmulatedBridge:
 
 # --- the USB port -------------------------------------------------------------------------------
 
-class PtyBridgeServer:
+class PtyBridgeServer(ThreadedEmulator):
     """Serves an EmulatedBridge on a pty reachable at `link` (a symlink to the pty's slave)."""
 
     # Bytes unread by the host beyond which frames are dropped (real time), as the firmware drops
@@ -346,6 +347,8 @@ class PtyBridgeServer:
     BACKLOG_BYTES = 4095
     # Frames sent late (this process starved) are held up to this much (about 6 s of frames)
     LATE_BACKLOG_BYTES = 64 * 1024
+    THREAD_NAME = "biotac-emulator"
+    JOIN_TIMEOUT_S = 5.0
 
     def __init__(self, bridge: EmulatedBridge, link: str | Path, lockstep: bool = False,
                  replug_after_s: float = 1.0, served_path: str | Path | None = None,
@@ -359,12 +362,11 @@ class PtyBridgeServer:
         self.unplugs = 0
         self.tx_dropped = 0      # frames dropped because the host did not read (real time)
         self.error: Exception | None = None
-        self._stop = threading.Event()
+        super().__init__()
         self._master = self._slave = -1
         self._out = bytearray()
         self._catching_up = False
         self._idle_since: float | None = None     # when the last stream stopped (real time)
-        self._thread: threading.Thread | None = None
         self.ready = threading.Event()
 
     def plug(self) -> None:
@@ -393,19 +395,16 @@ class PtyBridgeServer:
                 os.close(fd)
         self._master = self._slave = -1
 
-    def start(self) -> "PtyBridgeServer":
-        """Plugs in and serves on a thread; returns self."""
+    def _open(self) -> None:
         self.plug()
-        self._thread = threading.Thread(target=self._serve_or_record_error, name="biotac-emulator",
-                                        daemon=True)
-        self._thread.start()
+
+    def start(self) -> "PtyBridgeServer":
+        """Plugs in and serves on a thread; returns self once it serves (or failed: `error`)."""
+        super().start()
         self.ready.wait(5.0)
         return self
 
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(5.0)
+    def _close(self) -> None:
         if self._master >= 0:
             self._close_pty()
         if self.served_file:
@@ -446,7 +445,7 @@ class PtyBridgeServer:
         """Bytes written to the port that the host has not read yet."""
         return struct.unpack("i", fcntl.ioctl(self._slave, termios.FIONREAD, b"\0\0\0\0"))[0]
 
-    def _serve_or_record_error(self) -> None:
+    def _serve(self) -> None:
         try:
             self.serve()
         except Exception as exc:      # the CLI reports it and exits 1 instead of going silent

@@ -12,7 +12,7 @@
 
 Each section also keeps its measured points, the fit's residual, the date and the instrument the
 operator named, so that a number in the file can be traced to the session that made it.
-`node_values(rig_config, section)` is how a node takes them (`nodes.rig_check.apply_rig_config`):
+`node_values(rig_config, section)` is how a node takes them (`devices.rig_config.apply_rig_config`):
 precedence node default < rig.yaml section < calibration < launch file / command line; a key set
 both in rig.yaml's section and by the calibration is a named error (two places for one number).
 """

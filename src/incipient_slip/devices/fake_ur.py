@@ -44,6 +44,8 @@ import threading
 import time
 from collections import Counter
 
+from incipient_slip.devices.emulator import ThreadedEmulator
+
 __all__ = ["FakeURController", "main", "DASHBOARD_PORT", "SCRIPT_PORT", "RTDE_PORT"]
 
 DASHBOARD_PORT, SCRIPT_PORT, RTDE_PORT = 29999, 30003, 30004
@@ -109,8 +111,10 @@ class _Conn:
 MAX_BACKLOG = 64 * 1024    # a client this far behind gets no new data packages until it reads
 
 
-class FakeURController:
+class FakeURController(ThreadedEmulator):
     """A UR controller (PolyScope `version`) on `address`: see the module docstring."""
+
+    THREAD_NAME = "fake-ur"
 
     def __init__(self, address: str = "127.0.0.2", *, version=(5, 9, 4, 1031232),
                  serial_number: str = "20195500000", remote_control: bool = True,
@@ -141,15 +145,14 @@ class FakeURController:
         self._sel = selectors.DefaultSelector()
         self._listeners: list[socket.socket] = []
         self._conns: dict[socket.socket, object] = {}
-        self._thread = None
-        self._stop = threading.Event()
+        super().__init__()
         self._t0 = time.monotonic()
         self._last = self._t0
 
     # --- control (any thread) ---
 
-    def start(self) -> "FakeURController":
-        """Binds the three ports on `address` (OSError if taken) and serves them in a thread."""
+    def _open(self) -> None:
+        """Binds the three ports on `address` (OSError if taken); the thread serves them."""
         for port, kind in zip(self.ports, ("dashboard", "script", "rtde")):
             s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
             s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -163,23 +166,9 @@ class FakeURController:
             s.setblocking(False)
             self._listeners.append(s)
             self._sel.register(s, selectors.EVENT_READ, ("listen", kind))
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="fake-ur", daemon=True)
-        self._thread.start()
-        return self
 
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join()
-            self._thread = None
+    def _close(self) -> None:
         self._close_all()
-
-    def __enter__(self):
-        return self.start()
-
-    def __exit__(self, *exc):
-        self.stop()
 
     @property
     def tcp_pose(self) -> list:
@@ -243,7 +232,7 @@ class FakeURController:
         self._conns.pop(conn, None)
         conn.close()
 
-    def _run(self) -> None:
+    def _serve(self) -> None:
         while not self._stop.is_set():
             now = time.monotonic()
             with self._lock:

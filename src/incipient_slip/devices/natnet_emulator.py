@@ -27,6 +27,7 @@ import time
 from collections import Counter, deque
 
 from incipient_slip.devices import natnet as nn
+from incipient_slip.devices.emulator import ThreadedEmulator
 
 __all__ = ["NatNetEmulator", "free_udp_port", "free_udp_port_pair", "main"]
 
@@ -65,8 +66,10 @@ def free_udp_port_pair(address: str = "127.0.0.1", tries: int = 100) -> int:
     raise OSError(f"no free UDP port pair on {address} after {tries} tries")
 
 
-class NatNetEmulator:
+class NatNetEmulator(ThreadedEmulator):
     """Streams one rigid body over NatNet `version` from `address`; a thread, see start()."""
+
+    THREAD_NAME = "natnet-emulator"
 
     def __init__(self, version=(4, 1), *, address: str = "127.0.0.1", command_port: int = 0,
                  data_port: int = nn.DEFAULT_DATA_PORT, multicast: bool = False,
@@ -92,8 +95,7 @@ class NatNetEmulator:
         self._held = None            # a frame held back by "reorder"
         self._frame_number = 0
         self._sock: socket.socket | None = None
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
+        super().__init__()
         self._t0 = time.monotonic()
 
     # --- control (any thread) ---
@@ -115,8 +117,8 @@ class NatNetEmulator:
         with self._lock:
             self._faults.extend([fault] * n)
 
-    def start(self) -> "NatNetEmulator":
-        """Binds the command port and starts streaming in a background thread."""
+    def _open(self) -> None:
+        """Binds the command port (streaming starts on the thread)."""
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         sock.bind((self.address, self._requested_port))
@@ -125,17 +127,9 @@ class NatNetEmulator:
             sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
         self._requested_port = sock.getsockname()[1]
         self._sock = sock
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="natnet-emulator", daemon=True)
-        self._thread.start()
-        return self
 
-    def stop(self) -> None:
-        """Stops streaming and closes the port."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join()
-            self._thread = None
+    def _close(self) -> None:
+        """Closes the port (streaming has stopped)."""
         if self._sock is not None:
             self._sock.close()
             self._sock = None
@@ -150,12 +144,6 @@ class NatNetEmulator:
         self.stats["restarts"] += 1
         self.start()
 
-    def __enter__(self):
-        return self.start()
-
-    def __exit__(self, *exc):
-        self.stop()
-
     def server_info(self) -> nn.ServerInfo:
         """What it answers a connect with."""
         return nn.ServerInfo(self.app_name, MOTIVE_VERSION.get(self.version, (0, 0, 0, 0)),
@@ -164,7 +152,7 @@ class NatNetEmulator:
 
     # --- the server thread ---
 
-    def _run(self) -> None:
+    def _serve(self) -> None:
         period = 1.0 / self.rate_hz
         due = time.monotonic() + period
         while not self._stop.is_set():

@@ -31,6 +31,7 @@ import time
 import tty
 from collections import Counter, deque
 
+from incipient_slip.devices.emulator import ThreadedEmulator
 from incipient_slip.devices.zaber import checksum, message_id_of
 
 __all__ = ["ZaberEmulator", "main", "DEFAULT_MICROSTEPS_PER_MM"]
@@ -39,8 +40,10 @@ DEFAULT_MICROSTEPS_PER_MM = 1000.0 / 0.047625   # X-LSM microstep 0.047625 um
 FAULTS = ("no_reply", "garble", "bad_checksum")
 
 
-class ZaberEmulator:
+class ZaberEmulator(ThreadedEmulator):
     """A Zaber device (`device`, one axis) behind a pty; `port` is the path to open."""
+
+    THREAD_NAME = "zaber-emulator"
 
     def __init__(self, *, device: int = 1, microsteps_per_mm: float = DEFAULT_MICROSTEPS_PER_MM,
                  limit_min_mm: float = 0.0, limit_max_mm: float = 50.0, speed_mm_s: float = 5.0,
@@ -67,37 +70,22 @@ class ZaberEmulator:
         self._move: tuple | None = None     # (start_pos, target, t_start, duration)
         self._buf = b""
         self._master = self._slave = None
-        self._thread = None
-        self._stop = threading.Event()
+        super().__init__()
         self.port = ""
 
     # --- control ---
 
-    def start(self) -> "ZaberEmulator":
-        """Opens the pty (raw, no echo) and serves it in a background thread."""
+    def _open(self) -> None:
+        """Opens the pty (raw, no echo); the thread serves it."""
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)
         self.port = os.ttyname(self._slave)
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="zaber-emulator", daemon=True)
-        self._thread.start()
-        return self
 
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join()
-            self._thread = None
+    def _close(self) -> None:
         for fd in (self._master, self._slave):
             if fd is not None:
                 os.close(fd)
         self._master = self._slave = None
-
-    def __enter__(self):
-        return self.start()
-
-    def __exit__(self, *exc):
-        self.stop()
 
     def inject(self, fault: str, n: int = 1) -> None:
         """The next n lines it sends suffer `fault` (no_reply, garble, bad_checksum)."""
@@ -128,7 +116,7 @@ class ZaberEmulator:
 
     # --- the device ---
 
-    def _run(self) -> None:
+    def _serve(self) -> None:
         while not self._stop.is_set():
             readable, _, _ = select.select([self._master], [], [], 0.02)
             with self._lock:

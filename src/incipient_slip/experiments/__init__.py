@@ -1,4 +1,4 @@
-"""The paper's results, one module per result, all of one shape.
+"""The paper's results, one module (or package) per result, all of one shape.
 
 Each experiment module defines
 
@@ -11,6 +11,9 @@ Each experiment module defines
   hand-written; `docs.write_blocks` puts each block between its markers;
 * optionally `RESULTS` (a file name in docs/figures/ that keeps the page's results in the
   repository) and `SEED` (its default seed, when not 0).
+
+An experiment imports no other experiment (tests/repo/test_import_direction.py): what two share
+is a module here that is not one (settings, plots, runner, datasets, closed_loop, mechanics_fit).
 
 `slip` imports every experiment module to build its parser, so a module imports the simulator,
 scipy or scikit-learn inside `run()` and its helpers, not at the top.

@@ -46,6 +46,9 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
                         help="processes or graphs in parallel (default min(2, cores))")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
+    parser.add_argument("--no-cache", dest="no_cache", action="store_true",
+                        help="compute every fit and feature again (runs/cache unused): a check that the "
+                        "results come from the code, not from an earlier run")
     parser.add_argument("--render-only", action="store_true",
                         help="rewrite the docs blocks from the saved results; run nothing")
 
@@ -72,11 +75,9 @@ def register(subparsers) -> None:
 
 
 def _run_one(argv: list[str], log: Path) -> int:
-    """`slip reproduce ARGV` in this process, its output going to `log` (for reproduce all)."""
+    """`slip reproduce ARGV` in a process of its own, its output going to `log` (for reproduce all)."""
     from .reproduce_all import run_logged
-    parser = argparse.ArgumentParser(prog="slip")
-    register(parser.add_subparsers(dest="command", required=True))
-    return run_logged(parser, cmd_reproduce, argv, log)
+    return run_logged(argv, log)
 
 
 def settings_from_args(args: argparse.Namespace, module) -> Settings:
@@ -137,7 +138,8 @@ def cmd_reproduce(args) -> int:
             raise UsageError(f"--render-only needs {source}; run `slip reproduce {args.experiment}` first")
         results = json.loads(source.read_text())
     else:
-        with cache.use(settings.pick(quick=settings.work / "cache", full=runs_dir() / "cache")):
+        with (cache.off() if getattr(args, "no_cache", False) else
+              cache.use(settings.pick(quick=settings.work / "cache", full=runs_dir() / "cache"))):
             results = module.run(settings)
         save_results(results, settings.work / "results.json")
         if source != settings.work / "results.json":

@@ -41,9 +41,7 @@ def hidden_set(seed: int) -> dict:
 
 def scene_with(hidden: dict, material: str = "pla", scene_name: str = "mechanics"):
     """Return the mechanics scene with the hidden values; mu is set as the material's identified mu."""
-    from incipient_slip.sim.scene import load_scene
-
-    from .calibration import with_values
+    from incipient_slip.sim.scene import load_scene, with_values
 
     scene = load_scene(scene_name)
     values = {tuple(k.split(".")): v for k, v in hidden.items() if k != "mu"}

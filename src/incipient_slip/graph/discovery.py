@@ -156,6 +156,7 @@ class NodeInfo:
     netns: str = ""       # the network namespace its tcp endpoint is in; "" unknown
     params: dict[str, Any] = field(default_factory=dict)
     instance: str = ""    # random id in its file names (`new_instance`); "" for a hand-written one
+    identity: str = ""    # the keystore identity whose key it holds over tcp (security.py); "": its name
 
 
 def announce(directory: Path, info: NodeInfo) -> Path:
@@ -166,7 +167,7 @@ def announce(directory: Path, info: NodeInfo) -> Path:
                                "publishes": info.publishes, "subscribes": info.subscribes,
                                "started_ns": info.started_ns, "pidns": info.pidns,
                                "netns": info.netns, "params": info.params,
-                               "instance": info.instance}, default=str))
+                               "instance": info.instance, "identity": info.identity}, default=str))
     os.replace(tmp, path)
     info.path = path
     return path
@@ -325,7 +326,8 @@ def scan(directory: Path, clean: bool = True, refused: dict[str, str] | None = N
                             dict(raw.get("publishes", {})), dict(raw.get("subscribes", {})),
                             int(raw.get("started_ns", 0)), Path(entry.path),
                             str(raw.get("pidns", "")), str(raw.get("netns", "")),
-                            dict(raw.get("params", {})), str(raw.get("instance", "")))
+                            dict(raw.get("params", {})), str(raw.get("instance", "")),
+                            str(raw.get("identity", "")))
         except (OSError, ValueError, KeyError, TypeError):
             continue    # being replaced right now, or not ours
         if is_dead(info):

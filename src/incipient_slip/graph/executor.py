@@ -102,7 +102,7 @@ class Executor:
         timers = self._timers
         due = min(self._next_scan, timers[0].due) if timers else self._next_scan
         ms = max(0, int(min(timeout_s, due - now) * 1000.0 + 0.999))
-        if self._writers:       # a SUB per publisher (peers.py): poll them
+        if self._per_peer:      # a SUB per publisher (peers.py): poll them
             self._read_peers(self._poll_peers(ms), DRAIN_MAX, due)
         else:
             if ms != self._rcvtimeo:
@@ -126,7 +126,7 @@ class Executor:
         a timer that judges silence ("no heartbeat for 3 s", "no estimate 0.4 s after the tick")
         must see what arrived while this process was not run, or a loaded host reads as a
         silent graph."""
-        if self._writers:
+        if self._per_peer:
             self._read_peers(list(self._peer_of), TIMER_DRAIN_MAX)
             return
         recv, read = self._sub.recv, self._read
@@ -254,9 +254,11 @@ def run_node(node_class: type[Node], argv: list[str] | None = None, **kwargs) ->
         return EXIT_USAGE
     node = None
     signal_code = 0 if node_class.SIGNAL_ENDS_NORMALLY else None
+    early = []      # a signal that came while the node was being built (it may be announced already)
 
     def on_signal(signum, frame):
         if node is None:
+            early.append(signum)
             raise KeyboardInterrupt
         if node.stopping:   # second signal: the user means it
             raise KeyboardInterrupt
@@ -279,7 +281,9 @@ def run_node(node_class: type[Node], argv: list[str] | None = None, **kwargs) ->
     except KeyboardInterrupt:
         if node is not None and node.exit_code:
             return node.exit_code
-        return EXIT_INTERRUPTED if signal_code is None else signal_code
+        if signal_code is not None:
+            return signal_code
+        return EXIT_SIGNAL_BASE + early[0] if early else EXIT_INTERRUPTED
     except Exception:
         traceback.print_exc()
         return EXIT_FAILURE

@@ -201,7 +201,12 @@ def cmd_topic_pub(args) -> int:
     # a reader "on demand" (the viewer bridge) subscribes only while its own clients want the topic
     readers = [i.name for i in nodes if args.topic in i.subscribes
                or i.subscribes.get(ANY_TOPIC) not in (None, ON_DEMAND)]
-    kwargs = {"graph_dir": discovery.graph_dir(args.graph)}
+    from incipient_slip.graph.security import FORCE_IDENTITY, TOOL_IDENTITY
+    # over tcp the tools' key is read-only (security.py): only --force may write, and only topics
+    # the launch reads that no node of it writes (an operator's commands)
+    kwargs = {"graph_dir": discovery.graph_dir(args.graph),
+              "identity": FORCE_IDENTITY if args.force else TOOL_IDENTITY}
+    _check_tool_key(kwargs["graph_dir"], kwargs["identity"], args.topic)
     with _OnePublisher(type(msg), args.topic, **kwargs) as node:
         if readers and not node.pub.wait_for_subscribers(len(readers), args.wait):
             if node.pub.subscriber_count() == 0:      # a message nobody subscribed to goes nowhere
@@ -223,6 +228,22 @@ def cmd_topic_pub(args) -> int:
             if i + 1 < args.times:
                 time.sleep(1.0 / args.rate)
     return 0
+
+
+def _check_tool_key(graph_dir, identity: str, topic: str) -> None:
+    """Over tcp with a permissions file: UsageError when the tools' key may not publish `topic`
+    (every reader would refuse the message)."""
+    from incipient_slip.graph import security
+    if security.transport() != "tcp":
+        return
+    ring = security.keyring(security.keystore(graph_dir))
+    key = ring.key_of(identity)
+    if ring.restricted and (key is None or not ring.may_write(key, topic)):
+        hint = ("pass --force to use the tools' other key, which may publish the topics the launch "
+                "reads and none of its nodes writes" if identity == security.TOOL_IDENTITY else
+                "no node of the launch writes the topics it may publish")
+        raise UsageError(f"over tcp the tools' key ({identity}) may not publish {topic} in "
+                         f"{ring.store / security.PERMISSIONS_FILE}: every reader would refuse it; {hint}")
 
 
 def register_topic(tsub, graph, guard) -> None:

@@ -24,7 +24,7 @@ __all__ = ["render", "main", "ANNOUNCEMENT_KEYS"]
 REGENERATE = ".venv/bin/python -m incipient_slip.graph.messages_doc docs/messages.md"
 # The keys of an announcement file, as discovery.announce writes them (a test checks this).
 ANNOUNCEMENT_KEYS = ("name", "pid", "endpoint", "publishes", "subscribes", "started_ns", "pidns", "netns",
-                     "params", "instance")
+                     "params", "instance", "identity")
 
 _MSGPACK = {"bool": "bool", "str": "str", "float64": "float 64 (float 32 or int accepted)",
             **{w: "int" for w in INT_RANGES}}
@@ -238,7 +238,7 @@ with the keys {keys}:
  "publishes": {{"/slip/estimate": "SlipEstimate", "/heartbeat": "Heartbeat"}},
  "subscribes": {{"/biotac/pac": "BiotacPac", "/biotac/slow": "BiotacSlow", "/pzt/state": "PztState"}},
  "started_ns": 1700000000000000000, "pidns": "pid:[4026531836]", "netns": "net:[4026531840]",
- "params": {{"method": "injection", "window_s": 0.0}}, "instance": "5f0c2a9e"}}
+ "params": {{"method": "injection", "window_s": 0.0}}, "instance": "5f0c2a9e", "identity": ""}}
 ```
 
 `publishes` and `subscribes` map topics (after remaps) to type names; the topic `*` is every
@@ -250,7 +250,10 @@ C `clock_gettime(CLOCK_REALTIME)`), never a monotonic clock; a value before the 
 is ignored. `pidns` and `netns` are the writer's PID and network namespaces as
 `readlink /proc/self/ns/pid` (`.../net`) prints them; "" or absent means unknown. `params` are
 the node's parameters as it resolved them at its start (`slip param` reads them; nothing sets
-them back; a value JSON cannot hold is written as its text; absent means none). A reader skips
+them back; a value JSON cannot hold is written as its text; absent means none). `identity` is
+the keystore identity whose CURVE key the node holds over tcp, "" or absent for its own name
+(the `slip` tools hold `slip` or `slip-force`); a subscriber pins that identity's public key
+for the connection, so claiming one needs its secret key. A reader skips
 a file it cannot parse. It removes a file (and its ipc socket) only when the node is proven
 dead, with one log line: in the reader's own PID namespace, its pid is gone or belongs to a
 process started more than 10 s after `started_ns`; in another or an unknown namespace, its
@@ -262,11 +265,12 @@ endpoint refuses a connection (no listener on the ipc socket, or the socket file
 when the path would exceed {discovery._MAX_IPC_PATH} bytes (a Unix socket path holds 108; a node refuses
 to start when even the short path is too long: set `${discovery.GRAPH_DIR_ENV}` to a shorter
 directory). With `${discovery.TRANSPORT_ENV}=tcp` a node binds `tcp://127.0.0.1:<random port>`
-instead, and every socket uses ZeroMQ's CURVE mechanism with the graph's key pair: the XPUB is a
-CURVE server (the graph's secret key; ZAP admits only clients with the graph's public key), the
-SUB a CURVE client holding the graph's key pair with the graph's public key as server key. The
-keys are Z85 text in ZeroMQ's certificate format (`public-key = "..."`, `secret-key = "..."`) in
-`<graph dir>/curve.key` (mode 0600) or the file `$SLIP_CURVE_KEYS` names. Plain TCP is
+instead, and every socket uses ZeroMQ's CURVE mechanism with the node's own key pair: the XPUB
+is a CURVE server (ZAP admits only the public keys of the permissions file a launch writes), the
+SUB a CURVE client that pins each publisher's public key as the server key. The keys are Z85
+text in ZeroMQ's certificate format (`public-key = "..."`, `secret-key = "..."`) in
+`<graph dir>/keys/<name>.key_secret` (mode 0600) or the keystore `$SLIP_KEYSTORE` names
+(docs/graph.md, "Keys and permissions"). Plain TCP is
 `${discovery.TRANSPORT_ENV}=tcp-insecure`.
 """
 

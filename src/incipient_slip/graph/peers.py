@@ -2,6 +2,11 @@
 publishers it reads (only to the launch's writers of its inputs), the hello handshake by which a
 source knows its readers are subscribed, and the subscription news its XPUB reports.
 
+Over tcp (security.py) each connection pins the public key of the identity its publisher
+announces, so the key, not the name, is the publisher's identity: with a permissions file a
+message is delivered only if that key may publish its topic, and a hello counts only from the
+key of the node it names.
+
 `Peers` is a base of `runtime.Node` and uses its sockets and tables.
 """
 from __future__ import annotations
@@ -59,10 +64,21 @@ class Peers:
         self._xpub.setsockopt(zmq.LINGER, LINGER_MS)
         instance = discovery.new_instance()
         transport = security.transport()
-        # tcp: every socket CURVE-authenticated and encrypted with the graph's keys (security.py)
-        self._keys = security.graph_keys(self._dir) if transport == "tcp" else None
-        if self._keys:
-            security.secure_server(self._xpub, self._keys, str(self._dir))
+        # tcp: every socket CURVE-authenticated and encrypted with this node's own key pair, the
+        # peers' keys and topics from the keystore and its permissions file (security.py)
+        self._keyring: security.Keyring | None = None
+        self._keys = None
+        self._pinned: dict[str, bytes] = {}      # endpoint -> the server key its connection pinned
+        self._said_rotated = False
+        if transport == "tcp":
+            self._keyring = security.keyring(security.keystore(self._dir))
+            self._keys = security.node_keys(self._keyring.store, self._identity)
+            self._keyring.refresh()
+            if self._keyring.restricted and self._keyring.key_of(self._identity) != self._keys[0]:
+                self.warn(f"identity {self._identity} has no entry with its key in "
+                          f"{self._keyring.store / security.PERMISSIONS_FILE}: the other nodes "
+                          f"refuse it (a node of the launch that wrote it, or slip keys init)")
+            security.secure_server(self._xpub, self._keys, str(self._dir), self._keyring)
         elif transport == "tcp-insecure":
             self.warn(security.INSECURE_WARNING)
         if transport != "ipc":
@@ -73,17 +89,21 @@ class Peers:
             self._xpub.bind(endpoint)
         self._sub = self._new_sub()
         self._rcvtimeo = -1
-        # A node with writers (a launch's) gives each publisher it connects to a SUB of its own,
-        # so that every message is checked against the connection it came on (`_writer_refusal`)
+        # A node with writers (a launch's), or over tcp with a permissions file, gives each
+        # publisher it connects to a SUB of its own, so that every message is checked against the
+        # connection it came on (`_writer_refusal`, `_key_refusal`)
+        self._per_peer = bool(self._writers) or bool(self._keyring and self._keyring.restricted)
         self._peer_subs: dict[str, zmq.Socket] = {}     # endpoint -> its own SUB
         self._peer_of: dict[zmq.Socket, Peer] = {}
         self._poller = zmq.Poller()
         self._subscribed: dict[bytes, int] = {}     # prefix -> times subscribed, in order made
         self.refused_messages = 0
+        self.refused_hellos = 0        # over tcp: hellos naming a node whose key the sender lacks
         self._info = discovery.NodeInfo(self.name, os.getpid(), endpoint, started_ns=time.time_ns(),
                                         pidns=discovery.namespace("pid"), netns=discovery.namespace("net"),
                                         params=dict(self.params),   # for `slip param`
-                                        instance=instance)
+                                        instance=instance,
+                                        identity="" if self._identity == self.name else self._identity)
         self._discovery = discovery.Discovery(self._dir, log=lambda text: self.warn(text))
         self._connected: set[str] = set()
         self._retiring: dict[str, float] = {}   # endpoint -> monotonic time to disconnect
@@ -111,19 +131,30 @@ class Peers:
             self._subscribed.pop(prefix, None)
 
     def _connect(self, endpoint: str) -> None:
-        if not self._writers:
+        info = self._discovery.info_of(endpoint)
+        # over tcp the connection pins the key of the identity the publisher announces: only the
+        # holder of its secret key completes the handshake (`_accepts` made sure it is known)
+        key = self._keyring.key_of(_identity(info)) if self._keyring is not None else None
+        if key is not None:
+            self._pinned[endpoint] = key
+        if not self._per_peer:
+            if key is not None:
+                security.pin(self._sub, key)
             self._sub.connect(endpoint)
             return
         sub = self._new_sub()
         for prefix, n in self._subscribed.items():
             for _ in range(n):
                 sub.setsockopt(zmq.SUBSCRIBE, prefix)
+        if key is not None:
+            security.pin(sub, key)
         sub.connect(endpoint)
         self._peer_subs[endpoint] = sub
-        self._peer_of[sub] = Peer(self._discovery.info_of(endpoint))
+        self._peer_of[sub] = Peer(info, key)
         self._poller.register(sub, zmq.POLLIN)
 
     def _disconnect(self, endpoint: str) -> None:
+        self._pinned.pop(endpoint, None)
         sub = self._peer_subs.pop(endpoint, None)
         if sub is None:
             try:
@@ -215,7 +246,10 @@ class Peers:
 
     def _discover(self) -> None:
         self._next_scan = time.monotonic() + POLL_S
-        added, removed = self._discovery.changes(self._accepts if self._writers else None)
+        if self._keyring is not None:
+            self._follow_keys()
+        added, removed = self._discovery.changes(
+            self._accepts if self._writers or self._keyring is not None else None)
         now = time.monotonic()
         for endpoint in added:
             self._retiring.pop(endpoint, None)
@@ -237,18 +271,47 @@ class Peers:
         for peer in self._peer_of.values():       # the announcements as they are now
             peer.info = self._discovery.info_of(peer.info.endpoint) or peer.info
 
+    def _follow_keys(self) -> None:
+        """Re-reads the keystore if it changed; a connection whose publisher's identity now has
+        another key (rotated) is cut at once and made again, pinning the new key (so a process
+        still holding the old one gets nothing through). Says once if this node's own key was
+        rotated: its peers now refuse it until it is restarted."""
+        ring = self._keyring
+        ring.refresh()
+        for endpoint, key in list(self._pinned.items()):
+            info = self._discovery.info_of(endpoint)
+            if info is None or ring.key_of(_identity(info)) == key:
+                continue
+            self.warn(f"the key of {_identity(info)} changed (slip keys rotate): reconnecting to "
+                      f"{info.name} (pid {info.pid}) with the new one")
+            self._disconnect(endpoint)
+            self._connected.discard(endpoint)
+            self._retiring.pop(endpoint, None)
+            self._discovery.endpoints.discard(endpoint)      # offered again by changes()
+        if not self._said_rotated and ring.key_of(self._identity) not in (None, self._keys[0]):
+            self._said_rotated = True
+            self.warn(f"the key of {self._identity} was rotated; this process holds the old one, "
+                      f"which the other nodes now refuse: restart it")
+
     @property
     def refused_clients(self) -> int:
-        """Connections to this node's graph refused by CURVE authentication (a key that is not
-        the graph's), counted per process and graph."""
+        """Connections to this node's graph refused by CURVE authentication (a key the keystore
+        or its permissions file does not know), counted per process and graph."""
         return security.refused_clients(self._ctx, str(self._dir))
 
     def _accepts(self, info: discovery.NodeInfo) -> bool:
-        """Whether to connect to an announced node, given the launch's writers of our inputs:
-        never to one that announces an input of ours without being its declared writer (counted
-        and logged once), else to the declared writers and to the publishers of the inputs that
-        have none (an operator's command) or of every topic for a node that reads them all."""
+        """Whether to connect to an announced node: over tcp only to one whose identity has a
+        known key; given the launch's writers of our inputs, never to one that announces an
+        input of ours without being its declared writer (counted and logged once), else to the
+        declared writers and to the publishers of the inputs that have none (an operator's
+        command) or of every topic for a node that reads them all."""
+        if self._keyring is not None and self._keyring.key_of(_identity(info)) is None:
+            self._refuse(info, f"publisher {info.name} (pid {info.pid}) refused: no key for "
+                               f"identity {_identity(info)} in {self._key_source()}")
+            return False
         writers = self._writers
+        if not writers:
+            return True
         for topic in info.publishes:
             why = self._writer_refusal(info, topic)
             if why:
@@ -276,10 +339,10 @@ class Peers:
         one is counted (`refused_messages`) and logged once per peer (`refused_writers`)."""
         if topic in peer.topics:
             return True
-        why = self._writer_refusal(peer.info, topic)
+        why = self._writer_refusal(peer.info, topic) or self._key_refusal(peer, topic)
         if why:     # a publisher announces a topic before it sends on it: look again at once
             self._discover()
-            why = self._writer_refusal(peer.info, topic)
+            why = self._writer_refusal(peer.info, topic) or self._key_refusal(peer, topic)
         if not why:
             peer.topics.add(topic)
             return True
@@ -287,6 +350,17 @@ class Peers:
         self._refuse(peer.info, f"messages from {peer.info.name} (pid {peer.info.pid}) refused: "
                                 f"it sent {why}")
         return False
+
+    def _key_refusal(self, peer: "Peer", topic: str) -> str:
+        """Why the key `peer`'s connection authenticated may not write `topic` ("" if it may)."""
+        if peer.key is None or self._keyring.may_write(peer.key, topic):
+            return ""
+        names = ", ".join(self._keyring.names_of(peer.key)) or "a key no longer known"
+        return f"{topic}, which its key (identity {names}) may not publish in {self._key_source()}"
+
+    def _key_source(self) -> str:
+        ring = self._keyring
+        return str(ring.store / security.PERMISSIONS_FILE) if ring.restricted else f"keystore {ring.store}"
 
     def _refuse(self, info: discovery.NodeInfo, why: str) -> None:
         key = (info.name, info.pid)
@@ -296,14 +370,21 @@ class Peers:
 
     def _drain_xpub(self) -> None:
         counts = self._sub_counts
+        keyed = self._keyring is not None
         while True:
             try:
-                msg = self._xpub.recv(zmq.NOBLOCK)
+                if keyed:       # over tcp the frame carries the subscriber's key (ZAP's User-Id)
+                    frame = self._xpub.recv(zmq.NOBLOCK, copy=False)
+                    msg = frame.bytes
+                else:
+                    msg = self._xpub.recv(zmq.NOBLOCK)
             except zmq.Again:
                 return
             if not msg:
                 continue
             prefix = msg[1:]
+            if keyed and prefix.startswith(HELLO) and not self._hello_is_its_own(frame, prefix, msg[0] == 1):
+                continue
             if msg[0] == 1:
                 counts[prefix] = counts.get(prefix, 0) + 1
                 for pub in self._latched:
@@ -311,6 +392,29 @@ class Peers:
                         pub._send(pub.last)
             elif msg[0] == 0:
                 counts[prefix] = max(0, counts.get(prefix, 0) - 1)
+
+    def _hello_is_its_own(self, frame: zmq.Frame, prefix: bytes, subscribe: bool) -> bool:
+        """Over tcp, whether a hello (or its withdrawal) naming a node with a key came from that
+        key: a process with another key cannot answer for a reader this node waits for (it would
+        start before the reader listens). A name without a key (a tool's) is taken as it is, and
+        so is a withdrawal ZeroMQ makes when a connection ends (it carries no key)."""
+        name = prefix[len(HELLO):].decode(errors="replace")
+        expected = self._keyring.key_of(name)
+        if expected is None:
+            return True
+        try:
+            key = frame.get("User-Id").encode()
+        except zmq.ZMQError:
+            return not subscribe
+        if key == expected:
+            return True
+        if not subscribe:
+            return False
+        self.refused_hellos += 1
+        self.warn(throttle_s=60.0, key=("hello", name, key),
+                  text=f"a subscriber with the key of {', '.join(self._keyring.names_of(key)) or 'no known identity'} "
+                       f"said it is {name}: not counted as {name}'s subscription")
+        return False
 
     def _subscribers_of(self, frame: bytes) -> int:
         return sum(n for prefix, n in self._sub_counts.items() if frame.startswith(prefix))
@@ -335,10 +439,16 @@ class Peer:
     """A publisher this node connected to on a SUB of its own: its announcement as last scanned,
     and the topics already found to be its to send here."""
 
-    __slots__ = ("info", "topics")
+    __slots__ = ("info", "topics", "key")
 
-    def __init__(self, info: discovery.NodeInfo):
-        self.info, self.topics = info, set()
+    def __init__(self, info: discovery.NodeInfo, key: bytes | None = None):
+        # key: over tcp, the public key the connection pinned, which the handshake proved
+        self.info, self.topics, self.key = info, set(), key
+
+
+def _identity(info: discovery.NodeInfo) -> str:
+    """The keystore identity a node announces (its name unless it holds another's key: a tool)."""
+    return info.identity or info.name
 
 
 def _table_from_env(env: str, node: str) -> dict[str, list[str]]:

@@ -73,7 +73,9 @@ class Node(Peers, Executor):
     name given by the subclass), `graph_dir` (default: discovery.graph_dir()), `raw_params` (the text
     each command-line param came from), `heartbeat_s` (0 disables the heartbeat), `readers`
     ({output topic: reader node names} for `wait_for_readers`; default: $SLIP_READERS),
-    `writers` ({input topic: the only node names it is accepted from}; default: $SLIP_WRITERS).
+    `writers` ({input topic: the only node names it is accepted from}; default: $SLIP_WRITERS),
+    `identity` (over tcp, the keystore identity whose key it holds; default: its name; the
+    `slip` tools use security.TOOL_IDENTITY or FORCE_IDENTITY).
     """
 
     PARAMS: dict[str, Any] = {}
@@ -94,8 +96,10 @@ class Node(Peers, Executor):
                  node_name: str | None = None, graph_dir=None, raw_params: dict | None = None,
                  heartbeat_s: float = HEARTBEAT_S, context: zmq.Context | None = None,
                  readers: dict[str, list[str]] | None = None,
-                 writers: dict[str, list[str]] | None = None):
+                 writers: dict[str, list[str]] | None = None, identity: str | None = None):
         self.name = node_name or name
+        # whose key it holds over tcp (security.py): its name, or a tool's shared identity
+        self._identity = identity or self.name
         self.params = merge_params(self.name, declared_params(type(self)), params or {}, raw=raw_params)
         self.remaps = dict(remaps or {})
         self.malformed = self.seq_gaps = 0

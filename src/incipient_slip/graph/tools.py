@@ -31,8 +31,11 @@ def _node_argv(**params) -> list[str]:
 
 def _graph_kwargs(args) -> dict:
     """The graph directory of --graph / $SLIP_GRAPH_DIR / $SLIP_GRAPH, resolved here so that a bad
-    name is this command's one-line error (GraphNameError is a ValueError), not a node's."""
-    return {"graph_dir": discovery.graph_dir(getattr(args, "graph", None))}
+    name is this command's one-line error (GraphNameError is a ValueError), not a node's; and
+    the tools' identity over tcp (security.py): read-only, or with --force the operator's."""
+    from incipient_slip.graph.security import FORCE_IDENTITY, TOOL_IDENTITY
+    return {"graph_dir": discovery.graph_dir(getattr(args, "graph", None)),
+            "identity": FORCE_IDENTITY if getattr(args, "force", False) else TOOL_IDENTITY}
 
 
 def _topic(text: str) -> str:
@@ -197,11 +200,15 @@ def _graph_option() -> argparse.ArgumentParser:
     return graph
 
 
+def command_group(subparsers, word: str, **parser_kw):
+    """`slip WORD TOOL ...`: the subparsers of WORD's tools (TOOL required)."""
+    return subparsers.add_parser(word, **parser_kw).add_subparsers(dest="tool", metavar="TOOL", required=True)
+
+
 def register_topic(subparsers) -> None:
     """Adds `slip topic ...` and `slip node ...` (light: nothing of numpy or zmq is imported)."""
     graph = _graph_option()
-    topic = subparsers.add_parser("topic", help="look at the topics of a running graph")
-    tsub = topic.add_subparsers(dest="tool", metavar="TOOL", required=True)
+    tsub = command_group(subparsers, "topic", help="look at the topics of a running graph")
     p = tsub.add_parser("list", parents=[graph], help="topics being published now, types and rates")
     p.add_argument("--duration", type=float, default=1.0, metavar="S",
                    help="listen this long to measure rates (default 1 s)")
@@ -228,12 +235,11 @@ def register_bag(subparsers) -> None:
     from incipient_slip.graph.bag import FLUSH_S
 
     graph = _graph_option()
-    bag = subparsers.add_parser(
-        "bag", help="record, play, inspect, recover and export MCAP recordings",
+    bsub = command_group(
+        subparsers, "bag", help="record, play, inspect, recover and export MCAP recordings",
         description="Recordings are MCAP files with one msgpack channel per topic, each with a "
         "JSON schema (PlotJuggler opens them as they are; Foxglove and Lichtblick open the "
         "output of 'slip bag export --foxglove'). See docs/tools.md.")
-    bsub = bag.add_subparsers(dest="tool", metavar="TOOL", required=True)
     p = bsub.add_parser(
         "record", parents=[graph], help="record topics (all if none) to an MCAP file until "
         "Ctrl-C/SIGTERM",
@@ -266,6 +272,9 @@ def register_bag(subparsers) -> None:
                    help="before playing, wait for N subscribers on each topic (default 1; 0: don't)")
     p.add_argument("--wait-timeout", type=float, default=3.0, metavar="S",
                    help="play anyway after S seconds of waiting (default 3)")
+    p.add_argument("--force", action="store_true", help="over tcp, publish with the tools' "
+                   "--force key (the topics a launch reads and none of its nodes writes); without "
+                   "it the tools' key is read-only and readers refuse what it sends")
     p.set_defaults(func=_guard(cmd_bag_play))
     p = bsub.add_parser(
         "info", help="topics, types, counts, duration and rates of a recording; for a damaged "

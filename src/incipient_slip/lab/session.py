@@ -173,47 +173,59 @@ def run_session(session: Session, where: str | Path, *, launch_args=(), prompt=N
     total, done_before = len(session.series), len(session.series) - len(todo)
     durations: list[float] = []
     material = None
-    for n, entry in enumerate(todo, 1):
-        proc = None
-        try:                        # Ctrl-C anywhere in a series (a prompt, the launch): it stays pending
-            if prompt is not None:
-                change = f"put the {entry.material} object on the rail; " if entry.material != material else ""
-                prompt(f"series {entry.index} ({entry.material}, injection {'on' if entry.injection else 'off'}): "
-                       f"{change}reset the object to its start and press Enter")
-            material = entry.material
-            final = where / entry.file
-            partial = final.with_name(final.stem + ".partial.mcap")
-            t0 = time.monotonic()
-            with _sigint_deferred():    # a Ctrl-C inside Popen would orphan a launch we cannot stop
-                proc = subprocess.Popen(series_command(session, entry, partial, launch_args),
-                                        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
-            _, err = proc.communicate()
-        except KeyboardInterrupt:
-            if proc is not None:
-                _stop(proc)
-            entry.status, entry.detail = "pending", "interrupted"
-            save_manifest(session, where)
-            log(f"interrupted: series {entry.index} stays pending; run the same command to resume")
-            raise
-        entry.seconds = round(time.monotonic() - t0, 2)
-        entry.exit_code = proc.returncode
-        periods, problem = check_recording(partial, session.steps) if partial.exists() else (0, "no recording")
-        entry.periods = periods
-        if proc.returncode == 0 and not problem:
-            os.replace(partial, final)
-            entry.status, entry.detail = "done", ""
-        else:
-            tail = err.decode(errors="replace").strip().splitlines()[-3:]
-            entry.status = "failed"
-            entry.detail = f"exit {proc.returncode}; {problem or 'recording complete'}; " + " | ".join(tail)
+    try:
+        for n, entry in enumerate(todo, 1):
+            proc = None
+            try:                    # Ctrl-C anywhere in a series (a prompt, the launch): it stays pending
+                if prompt is not None:
+                    change = f"put the {entry.material} object on the rail; " if entry.material != material else ""
+                    prompt(f"series {entry.index} ({entry.material}, injection {'on' if entry.injection else 'off'}): "
+                           f"{change}reset the object to its start and press Enter")
+                material = entry.material
+                final = where / entry.file
+                partial = final.with_name(final.stem + ".partial.mcap")
+                t0 = time.monotonic()
+                with _sigint_deferred():    # a Ctrl-C inside Popen would orphan a launch we cannot stop
+                    proc = subprocess.Popen(series_command(session, entry, partial, launch_args),
+                                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+                _, err = proc.communicate()
+            except KeyboardInterrupt:
+                if proc is not None:
+                    _stop(proc)
+                entry.status, entry.detail = "pending", "interrupted"
+                raise
+            with _sigint_deferred():        # a finished series is booked whole, whenever Ctrl-C comes
+                _book(entry, proc, err, partial, final, session.steps, t0)
+                save_manifest(session, where)
+                durations.append(entry.seconds)
+                left = len(todo) - n
+                eta = f", about {left * sorted(durations)[len(durations) // 2]:.0f} s left" if left else ""
+                log(f"[{done_before + n}/{total}] series {entry.index} {entry.material} injection "
+                    f"{'on' if entry.injection else 'off'}: {entry.status} in {entry.seconds:.1f} s"
+                    + (f" ({entry.detail})" if entry.status != "done" else f" ({entry.periods} periods)") + eta)
+    except KeyboardInterrupt:               # in a series, or between two (the next one waits)
         save_manifest(session, where)
-        durations.append(entry.seconds)
-        left = len(todo) - n
-        eta = f", about {left * sorted(durations)[len(durations) // 2]:.0f} s left" if left else ""
-        log(f"[{done_before + n}/{total}] series {entry.index} {entry.material} injection "
-            f"{'on' if entry.injection else 'off'}: {entry.status} in {entry.seconds:.1f} s"
-            + (f" ({entry.detail})" if entry.status != "done" else f" ({periods} periods)") + eta)
+        waiting = next((s for s in todo if s.status == "pending"), None)
+        log(f"interrupted: series {waiting.index} stays pending; run the same command to resume" if waiting
+            else "interrupted after the last series")
+        raise
     return sum(s.status == "done" for s in session.series)
+
+
+def _book(entry: SeriesEntry, proc: subprocess.Popen, err: bytes, partial: Path, final: Path, steps: int,
+          t0: float) -> None:
+    """Marks a finished series done (its recording renamed into place) or failed, with why."""
+    entry.seconds = round(time.monotonic() - t0, 2)
+    entry.exit_code = proc.returncode
+    periods, problem = check_recording(partial, steps) if partial.exists() else (0, "no recording")
+    entry.periods = periods
+    if proc.returncode == 0 and not problem:
+        os.replace(partial, final)
+        entry.status, entry.detail = "done", ""
+    else:
+        tail = err.decode(errors="replace").strip().splitlines()[-3:]
+        entry.status = "failed"
+        entry.detail = f"exit {proc.returncode}; {problem or 'recording complete'}; " + " | ".join(tail)
 
 
 @contextmanager

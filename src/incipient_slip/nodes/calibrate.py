@@ -100,7 +100,7 @@ class Press:
     """The UR5 moved along the pressing axis from its start pose (ur-rtde, blocking moveL)."""
 
     def __init__(self, cfg: dict):
-        from incipient_slip.nodes.ur5 import explain
+        from incipient_slip.devices.ur5 import explain
         self.host = str(cfg.get("robot_address", "192.168.1.5"))
         self.axis = "xyz".index(str(cfg.get("press_axis", "z")))
         self.sign = float(cfg.get("press_sign", 1.0))

@@ -51,21 +51,30 @@ class Estimator(Node):
         "origin_buffer_s": Param(2.0, lo=0.0, hi=60.0, help="frames kept until the first tick (period_origin tick), s"),
     }
 
-    def __init__(self, **kwargs):
-        super().__init__("estimator", **kwargs)
-        label = self.param("label")
-        if not self.param("model") and label and label not in SHIPPED_LABELS:
-            raise ParamError(f"node {self.name!r}: no shipped models are trained on label {label!r} (shipped: "
+    @classmethod
+    def check_inputs(cls, params: dict, name: str = "estimator"):
+        """The model file `model` (or the shipped one of method and label) loaded and checked
+        against method, window and label; ParamError naming the file (a launch: before any node
+        starts, so a missing model is not found after the rig has begun). Returns (model, path)."""
+        label = params["label"]
+        if not params["model"] and label and label not in SHIPPED_LABELS:
+            raise ParamError(f"node {name!r}: no shipped models are trained on label {label!r} (shipped: "
                              f"{', '.join(SHIPPED_LABELS)}); train one (slip train --label {label}) and pass model:=FILE")
-        path = self.param("model") or default_model_path(self.param("method"), label or DEFAULT_LABEL)
+        path = params["model"] or default_model_path(params["method"], label or DEFAULT_LABEL)
         try:
-            model = load_model(path, method=self.param("method"), window_s=self.param("window_s") or None)
+            model = load_model(path, method=params["method"], window_s=params["window_s"] or None)
         except ModelFileError as exc:     # run_node reports a ParamError in one line, exit 2
-            raise ParamError(f"node {self.name!r}: {exc}") from None
+            raise ParamError(f"node {name!r}: {exc}") from None
         trained_on = rule_of_header(model.header)
         if label and trained_on.name != label:
-            raise ParamError(f"node {self.name!r}: model {path} was trained on label {trained_on.name!r}, "
+            raise ParamError(f"node {name!r}: model {path} was trained on label {trained_on.name!r}, "
                              f"not {label!r} (label:={trained_on.name}, or another model:=)")
+        return model, path
+
+    def __init__(self, **kwargs):
+        super().__init__("estimator", **kwargs)
+        model, path = self.check_inputs(self.params, self.name)
+        trained_on = rule_of_header(model.header)
         self.core = PeriodEstimator(model, PERIOD_NS, round(self.param("stale_after_s") * 1e9),
                                     self.param("wall_timeout_s"))
         pac = model.spec.stream == "pac"

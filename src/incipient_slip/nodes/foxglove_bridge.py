@@ -210,7 +210,9 @@ def cmd_view(args) -> int:
         kwargs = {}
     if importlib.util.find_spec("foxglove") is None:
         raise UsageError(EXTRA_HINT)
-    return run_node(FoxgloveBridge, [f"host:={args.host}", f"port:={args.port}"], **kwargs)
+    from incipient_slip.graph.security import TOOL_IDENTITY    # over tcp: the tools' read-only key
+    return run_node(FoxgloveBridge, [f"host:={args.host}", f"port:={args.port}"], identity=TOOL_IDENTITY,
+                    **kwargs)
 
 
 def register(subparsers) -> None:

@@ -38,7 +38,7 @@ import time
 from incipient_slip.devices import zaber
 from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
-from incipient_slip.nodes.rig_check import apply_rig_config
+from incipient_slip.devices.rig_config import apply_rig_config
 from incipient_slip.messages import ActuatorCommand, ActuatorState, BiotacStatus, GripCommand
 
 EXIT_NO_DEVICE = 2

@@ -29,7 +29,7 @@ import numpy as np
 from incipient_slip.devices import natnet as nn
 from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
-from incipient_slip.nodes.rig_check import apply_rig_config
+from incipient_slip.devices.rig_config import apply_rig_config
 from incipient_slip.messages import ObjectPose
 
 EXIT_NO_DEVICE = 2

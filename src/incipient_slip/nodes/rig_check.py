@@ -27,36 +27,12 @@ import socket
 import time
 from concurrent.futures import ThreadPoolExecutor
 
-from incipient_slip.devices import biotac, calibration, natnet, pzt, rig_config, zaber
+from incipient_slip.devices import biotac, natnet, pzt, rig_config, zaber
 from incipient_slip.errors import UsageError
-from incipient_slip.graph.params import Param, ParamError, merge_params
+from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
 
 EXIT_MISSING = 2
-
-
-def apply_rig_config(node, section: str, explicit: dict | None) -> None:
-    """Fills `node.params` from `section` of the file in its `rig_config` parameter and from the
-    calibration file it names (`devices.calibration`), keeping every parameter given explicitly
-    (`explicit`); ParamError names the file and the key."""
-    path = node.param("rig_config")
-    if not path:
-        return
-    try:
-        values = rig_config.load_section(path, section)
-        values = {**values, **calibration.node_values(path, section, values)}
-    except UsageError as exc:
-        raise ParamError(str(exc)) from None
-    explicit = dict(explicit or {})
-    declared: dict = {}
-    for klass in reversed(type(node).__mro__):
-        declared.update(getattr(klass, "PARAMS", {}) or {})
-    try:
-        node.params = merge_params(node.name, declared,
-                                   {k: v for k, v in values.items() if k not in explicit},
-                                   {k: node.params[k] for k in explicit})
-    except ParamError as exc:
-        raise ParamError(f"rig_config {path} [{section}]: {exc}") from None
 
 
 def check_natnet(cfg: dict, timeout_s: float) -> str:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import yaml
@@ -205,6 +205,22 @@ def validate_effects(effects, where: str = "scene") -> frozenset[str]:
             if need not in effects:
                 raise SceneError(f"{where}: effect {effect!r} needs effect {need!r}, which the scene does not list")
     return effects
+
+
+def with_values(scene: Scene, values: dict) -> Scene:
+    """Return the scene with {(section, key): value} replaced in its parameters (KeyError names an unknown one)."""
+    params = {k: (dict(v) if isinstance(v, dict) else v) for k, v in scene.params.items()}
+    for (section, key), value in values.items():
+        if key not in params[section]:
+            raise KeyError(f"unknown parameter {section}.{key}")
+        params[section][key] = value
+    return replace(scene, params=params)
+
+
+def with_effects(scene: Scene, effects) -> Scene:
+    """Return the scene restricted to `effects` (those it has)."""
+    keep = validate_effects([e for e in effects if scene.has(e)], scene.source or scene.name)
+    return replace(scene, effects=keep)
 
 
 def scene_from_dict(doc: dict, where: str = "scene", yaml_text: str = "") -> Scene:

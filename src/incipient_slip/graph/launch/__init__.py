@@ -143,7 +143,11 @@ def main(argv: list[str] | None = None) -> int:
             print(_dot(desc) if args.dot else _printed(desc.to_plain()), end="")
             return 0
         graph_dir = discovery.graph_dir(args.graph)
-        security.transport()       # $SLIP_TRANSPORT, before any node starts (TransportError)
+        # $SLIP_TRANSPORT, before any node starts (TransportError); over tcp the nodes' keys and
+        # the permissions file they enforce (security.py), written from the topology
+        if security.transport() == "tcp" and desc.topology is not None:
+            security.write_permissions(security.keystore(graph_dir), desc.topology.permissions(),
+                                       f"launch {desc.file}")
         check_node_inputs(desc)    # the files params name (an overlay), likewise
     except (LaunchError, discovery.GraphNameError) as exc:
         print(f"launch: error: {exc}", file=sys.stderr)

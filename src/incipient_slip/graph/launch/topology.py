@@ -138,6 +138,21 @@ class Topology:
             return {}
         return {t: self.writers_of(t) for t in inputs if t != HEARTBEAT_TOPIC and self.writers_of(t)}
 
+    def permissions(self) -> dict[str, dict[str, list[str]]]:
+        """{node name: {"publish": topics, "subscribe": topics}} for the permissions file
+        (security.write_permissions): each node its outputs and inputs ("*" for every topic, and
+        for a node that declares none); the `slip` tools' key reads every topic, with `--force`
+        it may also write the topics this launch reads and no node writes (an operator's)."""
+        from incipient_slip.graph.security import FORCE_IDENTITY, TOOL_IDENTITY
+        out = {}
+        for node in self.nodes:
+            out[node.name] = {side: sorted(getattr(node, attr)) if getattr(node, attr) is not None else [ANY_TOPIC]
+                              for side, attr in (("publish", "outputs"), ("subscribe", "inputs"))}
+        unwritten = [t for t in self.topics() if self.readers.get(t) and not self.writers_of(t)]
+        out[TOOL_IDENTITY] = {"publish": [], "subscribe": [ANY_TOPIC]}
+        out[FORCE_IDENTITY] = {"publish": unwritten, "subscribe": [ANY_TOPIC]}
+        return out
+
     def typed_topics(self) -> dict[str, str]:
         """{topic: type name} of every topic of the launch whose type a node declares, and
         `/heartbeat` (every node's)."""
