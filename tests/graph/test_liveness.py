@@ -122,9 +122,46 @@ def test_two_nodes_of_one_name_each_pid_1_of_its_own_pid_namespace_are_both_in_t
 
 def test_remove_pid_removes_a_killed_node_s_files_whatever_its_instance_id(graph):
     info = discovery.NodeInfo("n", 4242, discovery.ipc_endpoint(graph.dir, "n", 4242, "0a1b2c3d"),
-                              instance="0a1b2c3d")
+                              pidns=discovery.namespace("pid"), instance="0a1b2c3d")
     discovery.announce(graph.dir, info)
     Path(info.endpoint[6:]).touch()
     (graph.dir / "n-4243.0a1b2c3d.sock").touch()
-    assert discovery.remove_pid(graph.dir, 4242) == 2
+    (graph.dir / ".n-4242.99aa.node.json.tmp").touch()      # killed while announcing
+    assert discovery.remove_pid(graph.dir, 4242) == 3
     assert sorted(os.listdir(graph.dir)) == ["n-4243.0a1b2c3d.sock"]
+
+
+def test_remove_pid_keeps_a_live_node_of_the_same_pid_number_in_another_pid_namespace(graph):
+    """A launch books its child's end by pid; a node in a container (another PID namespace) may
+    have the same number. Before, remove_pid deleted that live node's announcement and socket."""
+    import socket as sk
+    foreign = discovery.NodeInfo("twin", 4242, discovery.ipc_endpoint(graph.dir, "twin", 4242, "0a1b2c3d"),
+                                 pidns="pid:[1]", instance="0a1b2c3d")
+    gone = discovery.NodeInfo("twin", 4242, discovery.ipc_endpoint(graph.dir, "twin", 4242, "0e0e0e0e"),
+                              pidns="pid:[2]", instance="0e0e0e0e")
+    for info in (foreign, gone):
+        discovery.announce(graph.dir, info)
+    with sk.socket(sk.AF_UNIX, sk.SOCK_STREAM) as listening:
+        listening.bind(foreign.endpoint[6:])
+        listening.listen()
+        Path(gone.endpoint[6:]).touch()               # nothing listens there: proven gone
+        assert discovery.remove_pid(graph.dir, 4242) == 2
+        assert sorted(os.listdir(graph.dir)) == ["twin-4242.0a1b2c3d.node.json", "twin-4242.0a1b2c3d.sock"]
+        assert discovery.remove_pid(graph.dir, 4242, pidns="pid:[1]") == 2     # named: it goes
+    assert os.listdir(graph.dir) == []
+
+
+def test_a_launch_booking_its_pid_1_child_spares_the_pid_1_node_of_another_namespace(graph, probe):
+    """Under unshare a node is PID 1 of its namespace; our side's remove_pid(dir, 1) (what a
+    launch calls when a child of that number ends) must leave it in the graph."""
+    prefix = _unshare_prefix()
+    if prefix is None:
+        pytest.skip("unshare cannot make a PID namespace here")
+    heard: set[float] = set()
+    probe.node.create_subscription(M.PztCommand, lambda m: heard.add(m.intensity_db))
+    twin = graph.spawn([*prefix, "python", "-c", TWIN, "-3.0"])
+    probe.until(lambda: heard >= {-3.0}, 60, procs=[twin], what="the twin heard")
+    assert discovery.remove_pid(graph.dir, 1) == 0
+    assert [i.pid for i in discovery.scan(graph.dir) if i.name == "twin"] == [1]
+    heard.clear()
+    probe.until(lambda: heard == {-3.0}, 30, procs=[twin], what="the twin still heard")

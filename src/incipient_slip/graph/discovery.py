@@ -270,17 +270,34 @@ def is_dead(info: NodeInfo) -> bool:
     return _refuses(info.endpoint, info.netns)
 
 
-def remove_pid(directory: Path, pid: int) -> int:
-    """Removes what a node of process `pid` left in a graph directory (announcement, ipc
-    socket, half-written file), e.g. after it was SIGKILLed; returns how many files."""
-    removed = 0
+def remove_pid(directory: Path, pid: int, pidns: str | None = None) -> int:
+    """Removes what a node of process `pid` of PID namespace `pidns` (default: ours) left in a
+    graph directory (announcement, ipc socket, half-written file), e.g. after it was SIGKILLed;
+    returns how many files. The same number in another PID namespace is another process: its
+    files are removed only when its socket proves nothing listens (`_refuses`)."""
+    pidns = namespace("pid") if pidns is None else pidns
     try:
-        entries = list(os.scandir(directory))
+        entries = [e for e in os.scandir(directory)
+                   if (m := _PID_FILE.match(e.name)) and int(m.group(1)) == pid]
     except FileNotFoundError:
         return 0
+    stems = {}       # stem -> True if that stem's process is the one meant (or proven gone)
     for entry in entries:
-        m = _PID_FILE.match(entry.name)
-        if m and int(m.group(1)) == pid:
+        if entry.name.endswith(SUFFIX) and not entry.name.startswith("."):
+            try:
+                raw = json.loads(Path(entry.path).read_text())
+                theirs, endpoint = str(raw.get("pidns", "")), str(raw["endpoint"])
+            except (OSError, ValueError, KeyError, TypeError):
+                continue
+            stems[entry.name[:-len(SUFFIX)]] = (theirs == pidns) or _refuses(endpoint, str(raw.get("netns", "")))
+    removed = 0
+    for entry in entries:
+        stem = entry.name.lstrip(".").split(".node.json")[0].removesuffix(".sock")
+        ours = stems.get(stem)
+        if ours is None:     # no announcement: a socket (or a half-written file) of a node
+            sock = directory / f"{stem}.sock"    # killed before it announced, if nothing listens
+            ours = not sock.exists() or _refuses("ipc://" + str(sock))
+        if ours:
             try:
                 os.unlink(entry.path)
                 removed += 1
