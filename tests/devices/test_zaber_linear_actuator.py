@@ -71,10 +71,10 @@ def test_homes_then_steps_to_each_target_and_publishes_the_tick(rig):
 def test_lockstep_waits_for_the_grip_command_of_the_last_period(rig):
     emulator, node, probe = rig(lockstep=True)
     run((node, probe), lambda: len(probe.states) == 1)
-    deadline = node.k                          # stays at 1 while period 0 is unanswered
+    deadline = node.steps_done                          # stays at 1 while period 0 is unanswered
     for _ in range(50):
         node.spin_once(0.005)
-    assert node.k == deadline == 1
+    assert node.steps_done == deadline == 1
     probe.grip.publish(GripCommand(normal_force_kpa=3.0, period=0))
     run((node, probe), lambda: len(probe.states) == 2)
 
@@ -139,7 +139,7 @@ def test_silent_device_is_exit_2_naming_the_port(graph):
 def test_without_readers_it_starts_after_the_wait_timeout(rig):
     emulator, node, probe = rig(wait_subscribers=5, wait_timeout_s=0.2)
     run((node, probe), lambda: node.done)
-    assert node.k == 5
+    assert node.steps_done == 5
 
 
 def test_wait_tare_holds_step_0_until_the_biotac_reader_is_tared(rig):
@@ -150,7 +150,7 @@ def test_wait_tare_holds_step_0_until_the_biotac_reader_is_tared(rig):
     for _ in range(100):                              # 0.2 s: four periods of 50 ms
         node.spin_once(0.002)
         probe.spin_once(0.0)
-    assert node.k == 0 and probe.states == []
+    assert node.steps_done == 0 and probe.states == []
     probe.biotac.publish(BiotacStatus(tare_state="done"))
     run((node, probe), lambda: len(probe.states) == 5)
     assert [s.period for s in probe.states] == [0, 1, 2, 3, 4]

@@ -44,11 +44,11 @@ def test_the_slide_start_is_y_where_the_slide_starts_not_after_it():
     run = fit.run_mechanics(rig, np.full(3000, 2.3), stop_at_slip=True)
     k = fit.first_rule(run)
     assert k == len(run["travel_mm"]) - 1 > 0, "no gross slip under a ramp at 2.3 kPa"
-    start = fit.slide_start_mm(run, rig.k, k)
+    start = fit.slide_start_mm(run, rig.spring_n_per_mm, k)
     # the slide starts after the pad sheared to its limit: at or beyond the last stuck y,
     # and before where the period's slide carried the object
     assert run["object_y_mm"][k - 1] - 1e-9 <= start <= run["object_y_mm"][k] + 1e-9
-    assert math.isnan(fit.slide_start_mm(run, rig.k, 0))       # no slide in the first period
+    assert math.isnan(fit.slide_start_mm(run, rig.spring_n_per_mm, 0))       # no slide in the first period
 
 
 def test_write_params_rewrites_value_and_source_and_keeps_the_file_loadable(tmp_path):

@@ -51,7 +51,7 @@ def test_sliding_is_creep_like_at_constant_force():
     assert np.diff(y[k:]).min() > -1e-9
     # within a period the creep is smooth and monotone (no stick-slip oscillation)
     t = outs[-1].mocap_t_s - outs[-1].t_start_s
-    yt = positions(rig.state, rig.k, t)
+    yt = positions(rig.state, rig.spring_n_per_mm, t)
     assert np.all(np.diff(yt) >= -1e-12)
 
 

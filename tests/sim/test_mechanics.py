@@ -136,7 +136,7 @@ def _assert_same_run(scene, material, seed, chunks, actuator_step, stop, offset_
             assert got[name].tolist() == values, name
         assert (b.state.values.tobytes() == a.state.values.tobytes() or
                 np.array_equal(b.state.values, a.state.values, equal_nan=True))
-        assert b.k_period == a.k_period and b.prev_sar == a.prev_sar
+        assert b.period == a.period and b.prev_sar == a.prev_sar
         for stream in ("friction", "mocap"):                # the streams stand where step_period leaves them
             assert b.rng[stream].bit_generator.state == a.rng[stream].bit_generator.state
         if len(got["travel_mm"]) < len(forces):
@@ -184,7 +184,7 @@ def test_run_mechanics_refuses_other_scenes_and_bad_forces():
     rig = Rig(load_scene("mechanics"), "pla", 1)
     with pytest.raises(ValueError, match="step 2: normal_force_kpa must be finite"):
         rig.run_mechanics([1.0, 2.0, math.nan], RULE)
-    assert rig.k_period == 0
+    assert rig.period == 0
 
 
 def test_a_non_finite_state_is_the_same_named_simulation_error_on_both_paths():

@@ -101,12 +101,12 @@ def test_gross_slip_period_has_zero_stick_ratio_and_positive_travel():
     rig = Rig(load_scene("mechanics"), "nylon", 0)
     outs = [rig.step_period(1.1) for _ in range(450)]
     first = next(o for o in outs if o.gross_slip)
-    before = outs[first.period_index - 1]
+    before = outs[first.period - 1]
     assert before.load_ratio_stick < 0.1 and first.load_ratio_stick == 0.0
     # creep: once sliding, the object follows the actuator's pace on average (23/450 mm per period;
     # the period-to-period friction jitter can make single periods stick), which the paper's
     # 0.02 mm per period rule sees
-    k = first.period_index
+    k = first.period
     pace = (outs[k + 20].object_y_mm - outs[k].object_y_mm) / 20
     assert 0.02 < pace < 0.1
     assert first.object_y_mm > before.object_y_mm

@@ -105,15 +105,15 @@ class RigSignals(PeriodSignals):
         self.normal_force_kpa = normal_force_kpa
         self.zero = units.pac_zero_counts
         self.n_pac, self.n_slow = self.rig.n_pac, self.rig.n_slow
-        self.period_index = -1
+        self.last_period = -1
         self.out = None
 
     def period(self, k: int):
-        if k < self.period_index:
-            raise ValueError(f"period {k} is in the past (the rig is at period {self.period_index})")
-        while self.period_index < k:
+        if k < self.last_period:
+            raise ValueError(f"period {k} is in the past (the rig is at period {self.last_period})")
+        while self.last_period < k:
             self.out = self.rig.step_period(self.normal_force_kpa)
-            self.period_index += 1
+            self.last_period += 1
         return self.out
 
 

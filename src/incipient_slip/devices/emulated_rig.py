@@ -188,7 +188,7 @@ class SharedContact:
                 on = rms > self.pzt_on_rms
                 rig.set_injection(on, 20.0 * math.log10(rms / self.rated_rms) if on else None)
         out = rig.step_period(force, actuator_step=False)
-        k = out.period_index
+        k = out.period
         self.outputs[k] = out
         self.outputs.pop(k - KEEP_PERIODS, None)
         self.truth.append(PeriodTruth(k, force, out.actuator_mm, depth, out.pzt_on, out.pzt_intensity_db,

@@ -81,7 +81,7 @@ def record(out, ests: dict, ft_slip: float, state=None) -> dict:
     slide, pad shear and interfacial part), true ratio, pseudo label and estimates."""
     split = {} if state is None else {"slide_mm": state.anchor_mm, "bulk_mm": state.bulk_mm,
                                        "interfacial_mm": state.interfacial_mm}
-    return {"k": out.period_index, "fn_kpa": out.normal_force_kpa, "ft_n": out.tangential_force_n,
+    return {"k": out.period, "fn_kpa": out.normal_force_kpa, "ft_n": out.tangential_force_n,
             "y_mm": out.object_y_mm, **split, "true": out.load_ratio_stick,
             "pseudo": float(np.clip(1.0 - out.tangential_force_n / ft_slip, 0.0, 1.0)),
             **{f"est_{m}": v for m, v in ests.items()}}

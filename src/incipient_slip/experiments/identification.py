@@ -67,7 +67,7 @@ def identify_sim(scene, material: str, seed: int, plan: identify.Plan | None = N
     while True:
         rig.state.actuator_mm = cmd.actuator_mm
         out = rig.step_period(cmd.normal_force_kpa, actuator_step=False)
-        obs = identify.Observation(out.period_index, out.normal_force_kpa, out.actuator_mm,
+        obs = identify.Observation(out.period, out.normal_force_kpa, out.actuator_mm,
                                    out.t_start_s + rig.period_s, out.mocap_t_s, out.mocap_y_mm)
         try:
             cmd = gen.send(obs)

@@ -96,7 +96,7 @@ def onset_travel(scene: Scene, n_series: int, seed: int) -> dict:
         k_on = first_rule(run)
         rows["slipped"].append(k_on >= 0)
         rows["material"].append(mat)
-        rows["start"].append(float(slide_start_mm(run, rig.k, k_on)) if k_on >= 0 else math.nan)
+        rows["start"].append(float(slide_start_mm(run, rig.spring_n_per_mm, k_on)) if k_on >= 0 else math.nan)
         rows["prev"].append(float(ys[k_on - 1]) if k_on > 0 else math.nan)
         rows["end"].append(float(ys[k_on]) if k_on >= 0 else math.nan)
         rows["onset_fn"].append(float(fns[k_on]) if k_on >= 0 else math.nan)
@@ -134,7 +134,7 @@ def deformable_range(scene: Scene, levels, runs: int, seed: int) -> dict:
                 k = first_rule(run)
                 if k >= 0:
                     joined = {key: np.concatenate([r[key] for r in runs_so_far]) for key in run}
-                    y0 = slide_start_mm(joined, rig.k, done - 1)
+                    y0 = slide_start_mm(joined, rig.spring_n_per_mm, done - 1)
                     break
             vals.append(float(y0))
         out[float(fn)] = vals

@@ -97,7 +97,7 @@ class LinearActuator(Node):
         if not p("limit_min_mm") <= p("start_mm") <= p("limit_max_mm"):
             raise ParamError(f"start_mm:={p('start_mm')} is outside [limit_min_mm, limit_max_mm]"
                              f" = [{p('limit_min_mm')}, {p('limit_max_mm')}]")
-        self.steps, self.k, self.answered = p("steps"), 0, -1
+        self.steps, self.steps_done, self.answered = p("steps"), 0, -1
         self.done = self.failed = False
         self.state_pub = self.create_publisher(ActuatorState)
         self.create_subscription(GripCommand, self.on_grip)
@@ -185,7 +185,7 @@ class LinearActuator(Node):
     def step(self):
         if self.done or self.failed or self.stopping:
             return
-        k = self.k
+        k = self.steps_done
         if not self._started:
             if self.readers:           # in a launch: the readers it names, by name
                 missing = self.missing_readers()
@@ -214,8 +214,8 @@ class LinearActuator(Node):
             self._fault(f"step {k}: {exc}")
             return
         self.state_pub.publish(ActuatorState(position_mm=position, period=k, busy=False))
-        self.k += 1
-        if self.k >= self.steps:
+        self.steps_done += 1
+        if self.steps_done >= self.steps:
             self.done = True
             self.log(f"protocol done: {self.steps} steps, at {position:.4f} mm")
             if self.param("exit_when_done"):
@@ -248,7 +248,7 @@ class LinearActuator(Node):
             self._fault(f"command {msg.period}: {exc}")
             return
         self.last_period = msg.period
-        self.k += 1                   # moves done (the log at the end)
+        self.steps_done += 1                   # moves done (the log at the end)
         self.state_pub.publish(ActuatorState(position_mm=position, period=msg.period, busy=False))
 
     def _move_at_speed(self, target_mm: float, during: str) -> float:
@@ -293,7 +293,7 @@ class LinearActuator(Node):
             self.log(f"linear_actuator: could not move back to start_mm: {exc}; the spring may be loaded")
 
     def _close(self):
-        done = f"moves done {self.k}" if self.commanded else f"steps done {self.k}/{self.steps}"
+        done = f"moves done {self.steps_done}" if self.commanded else f"steps done {self.steps_done}/{self.steps}"
         self.log(f"{done}; serial {dict(self.client.stats)}")
         close = getattr(self.client.port, "close", None)
         if close is not None:

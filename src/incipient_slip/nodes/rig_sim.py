@@ -175,7 +175,7 @@ class RigSim(Node):
         self.judged = 0                   # periods the supervisor judged (its RunEvent steps)
         self.ended = False                # the supervisor's verdict arrived: nothing more is applied
 
-        self.k = 0                        # next period to simulate
+        self.periods_done = 0             # periods simulated: the next one's index
         self.last_command = -1            # period of the last command applied
         self.refused_commands = 0
         self.clamped_commands = 0         # commands whose force was limited here (rate or safety limit)
@@ -230,16 +230,16 @@ class RigSim(Node):
                       "starting anyway")
 
     def step(self) -> PeriodOutput | None:
-        """Simulates period self.k at the current force; None (and a fault exit) on a sim error."""
-        force = float(self.forces[self.k]) if self.forces is not None else self.force_kpa
+        """Simulates period self.periods_done at the current force; None (and a fault exit) on a sim error."""
+        force = float(self.forces[self.periods_done]) if self.forces is not None else self.force_kpa
         try:
             if self.commanded:
                 self.rig.state.actuator_mm = self.actuator_mm
                 return self.rig.step_period(force, actuator_step=False)
             return self.rig.step_period(force)
         except (ValueError, ArithmeticError) as exc:   # SimulationError is a ValueError
-            self.warn(f"period {self.k}: the simulator failed at F_N = {force} kPa: {exc}")
-            self.shutdown(f"simulator error in period {self.k}", EXIT_FAULT)
+            self.warn(f"period {self.periods_done}: the simulator failed at F_N = {force} kPa: {exc}")
+            self.shutdown(f"simulator error in period {self.periods_done}", EXIT_FAULT)
             return None
 
     def advance(self) -> None:
@@ -251,9 +251,9 @@ class RigSim(Node):
         for _, pub, msg in self.period_messages(out):
             pub.publish(msg)
         self.account(t)
-        self.k += 1
+        self.periods_done += 1
         self.waiting_since = time.monotonic()
-        if self.k >= self.steps:
+        if self.periods_done >= self.steps:
             self.finish()
 
     def release_due(self) -> None:
@@ -263,10 +263,10 @@ class RigSim(Node):
         now_ns = int((time.monotonic() - self.t0) * self.param("realtime_factor") * 1e9)
         while True:
             if not self.queue:
-                if self.k >= self.steps:
+                if self.periods_done >= self.steps:
                     self.finish()
                     return
-                if now_ns < self.k * PERIOD_NS:
+                if now_ns < self.periods_done * PERIOD_NS:
                     return
                 t = time.process_time(), time.perf_counter()
                 out = self.step()
@@ -274,7 +274,7 @@ class RigSim(Node):
                     return
                 self.queue.extend(self.period_messages(out))
                 self.account(t)
-                self.k += 1
+                self.periods_done += 1
             while self.queue and self.queue[0][0] <= now_ns:
                 _, pub, msg = self.queue.popleft()
                 pub.publish(msg)
@@ -288,18 +288,18 @@ class RigSim(Node):
     def finish(self) -> None:
         self.done = True
         self.waiting_since = None
-        cpu_ms, wall_ms = (1e3 * c / max(self.k, 1) for c in self.cost_s)
+        cpu_ms, wall_ms = (1e3 * c / max(self.periods_done, 1) for c in self.cost_s)
         what = "simulate + publish" if self.lockstep else "simulate + build; publishing not counted"
-        self.log(f"ran {self.k} periods; {cpu_ms:.2f} ms CPU ({wall_ms:.2f} ms wall) per period ({what})")
+        self.log(f"ran {self.periods_done} periods; {cpu_ms:.2f} ms CPU ({wall_ms:.2f} ms wall) per period ({what})")
         if self.param("exit_when_done"):
-            self.shutdown(f"{self.k} periods done")
+            self.shutdown(f"{self.periods_done} periods done")
 
     # --- commands ------------------------------------------------------------------------------
 
     def takes(self, what: str, period: int, last: int) -> bool:
         """A command is for the period just simulated (lock-step: the one awaited), never an old or
         future one; anything else is refused and counted. None after the last period."""
-        newest = self.k - 1
+        newest = self.periods_done - 1
         ok = period == newest if self.lockstep else last < period <= newest
         if not ok:
             self.refused_commands += 1
@@ -340,7 +340,7 @@ class RigSim(Node):
     def next_period(self) -> None:
         """Lock-step: period k+1 once period k is answered (its grip command, and its actuator
         command when `commanded`) and, with `wait_judge`, judged; never after the verdict."""
-        k = self.k - 1
+        k = self.periods_done - 1
         if (self.lockstep and not self.done and not self.ended and self.last_command == k
                 and (not self.commanded or self.last_actuator == k)
                 and (not self.param("wait_judge") or self.judged > k)):
@@ -353,7 +353,7 @@ class RigSim(Node):
         elif msg.kind in ("success", "failure", "fault", "end") and not self.ended:
             self.ended = True
             self.waiting_since = None
-            self.log(f"the supervisor's verdict ({msg.kind}) after period {self.k - 1}: nothing more is applied")
+            self.log(f"the supervisor's verdict ({msg.kind}) after period {self.periods_done - 1}: nothing more is applied")
 
     def on_pzt(self, msg: PztCommand) -> None:
         try:
@@ -378,22 +378,22 @@ class RigSim(Node):
         self.pzt_pub.publish(PztState(enabled=state[0], intensity_db=state[1],
                                       band_low_hz=float(p["band_low_hz"]),
                                       band_high_hz=float(p["band_high_hz"]),
-                                      stamp_ns=max(self.k * PERIOD_NS, 1)))
+                                      stamp_ns=max(self.periods_done * PERIOD_NS, 1)))
 
     def check_lockstep_timeout(self) -> None:
         timeout = self.param("lockstep_timeout_s")
         if self.waiting_since is None or timeout <= 0:
             return
         if time.monotonic() - self.waiting_since > timeout:
-            self.warn(f"lock-step: no GripCommand(period={self.k - 1}) within {timeout} s "
+            self.warn(f"lock-step: no GripCommand(period={self.periods_done - 1}) within {timeout} s "
                       "(is the grip controller running?)")
-            self.shutdown(f"lock-step timeout after period {self.k - 1}", EXIT_FAULT)
+            self.shutdown(f"lock-step timeout after period {self.periods_done - 1}", EXIT_FAULT)
 
     # --- one period as messages ----------------------------------------------------------------
 
     def period_messages(self, out: PeriodOutput) -> list:
         """Return [(stamp_ns, publisher, message)] of one period, in stamp order."""
-        k = out.period_index
+        k = out.period
         items = []
         if self.pac_pub is not None and out.pac_counts is not None:
             frames = out.pac_counts.reshape(FRAMES_PER_PERIOD, PAC_FRAME)

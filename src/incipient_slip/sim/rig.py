@@ -36,7 +36,7 @@ class PeriodOutput:
     Sensor arrays are None when the scene does not compute the effect behind them.
     """
 
-    period_index: int
+    period: int
     t_start_s: float
     pac_counts: np.ndarray | None          # int16 (1100,), 0.37 Pa/count, 2200 Hz
     electrode_counts: np.ndarray | None    # uint16 (50, 19), 100 Hz
@@ -92,7 +92,7 @@ class Rig:
         self.g_star_int = contact.interfacial_shear_modulus_mpa(c, mat["object_modulus_mpa"])
         # soft objects add a little damping to the modes (assumption: proportional to skin/object compliance ratio)
         self.material_damping = 0.01 * min(1.0, c["skin_modulus_mpa"] / mat["object_modulus_mpa"])
-        self.k = ss["spring_n_per_mm"]
+        self.spring_n_per_mm = ss["spring_n_per_mm"]
         self.step_mm = ss["actuator_travel_mm"] / ss["actuator_steps"]
         self.state = ContactState()
         ps = p["pre_slip"]
@@ -103,7 +103,7 @@ class Rig:
                   "mu_period_jitter": ss["mu_period_jitter"], "bulk_shear_n_per_mm": ps["bulk_shear_n_per_mm"],
                   "bulk_ref_force_n": ps["bulk_ref_force_n"],
                   "bulk_stiffening_exponent": ps["bulk_stiffening_exponent"], "g_star_int_mpa": self.g_star_int,
-                  "spring_n_per_mm": self.k, "rate_strengthening": ss["rate_strengthening"],
+                  "spring_n_per_mm": self.spring_n_per_mm, "rate_strengthening": ss["rate_strengthening"],
                   "creep_reference_velocity_mm_s": ss["creep_reference_velocity_mm_s"],
                   "restick_velocity_mm_s": ss["restick_velocity_mm_s"], "step_mm": self.step_mm,
                   "mocap_rate_hz": tm["mocap_rate_hz"],
@@ -111,7 +111,7 @@ class Rig:
         self.mech_params = np.array([float(values[name]) for name in mechanics.PARAMS])
         mechanics.warm_up()                              # once per process, not in the first period
         kernels.warm_up()
-        self.k_period = 0
+        self.period = 0
         self.prev_sar = 1.0
         self.pzt_on = scene.has("injection")
         self.pzt_db = scene.injection_db
@@ -156,7 +156,7 @@ class Rig:
 
     def step_period(self, normal_force_kpa: float, actuator_step: bool = True) -> PeriodOutput:
         """Return the sensor streams and truth of the next 500 ms period at normal force F_N (kPa)."""
-        k = self.k_period
+        k = self.period
         fn_kpa = float(normal_force_kpa)
         if not math.isfinite(fn_kpa) or fn_kpa < 0.0:
             raise ValueError(f"step {k}: normal_force_kpa must be finite and >= 0, got {normal_force_kpa}")
@@ -172,7 +172,7 @@ class Rig:
         check_truth(c, st.y_mm)
         out = self._output(c, pac, elec, pdc, tac, tdc)
         self.prev_sar = c.stick_area_ratio
-        self.k_period += 1
+        self.period += 1
         if actuator_step:
             st.actuator_mm += self.step_mm
         return out
@@ -180,7 +180,7 @@ class Rig:
     def _output(self, c: Contact, pac, elec, pdc, tac, tdc) -> PeriodOutput:
         st = self.state
         return PeriodOutput(
-            period_index=c.period, t_start_s=c.t_start_s, pac_counts=pac, electrode_counts=elec, pdc_counts=pdc,
+            period=c.period, t_start_s=c.t_start_s, pac_counts=pac, electrode_counts=elec, pdc_counts=pdc,
             tac_counts=tac, tdc_counts=tdc, mocap_t_s=c.mocap_t_s, mocap_y_mm=c.mocap_y_mm,
             normal_force_kpa=c.normal_force_kpa, tangential_force_n=c.tangential_force_n,
             actuator_mm=st.actuator_mm, object_y_mm=st.y_mm, stick_area_ratio=c.stick_area_ratio,
@@ -206,7 +206,7 @@ class Rig:
         forces = np.array(normal_force_kpa, dtype=np.float64).reshape(-1)
         bad = np.flatnonzero(~(np.isfinite(forces) & (forces >= 0.0)))
         if bad.size:
-            raise ValueError(f"step {self.k_period + int(bad[0])}: normal_force_kpa must be finite and >= 0, "
+            raise ValueError(f"step {self.period + int(bad[0])}: normal_force_kpa must be finite and >= 0, "
                              f"got {forces[bad[0]]}")
         n = forces.size
         streams = (self.rng["friction"], self.rng["mocap"])
@@ -214,7 +214,7 @@ class Rig:
         friction = streams[0].standard_normal(n)            # the draws n step_period calls would make
         mocap = streams[1].standard_normal((n, self.n_mocap))
         out = np.empty((n, len(mechanics.COLUMNS)))
-        done, status, step = mechanics.run_series(self.state.values, self.mech_params, self.k_period, forces, friction,
+        done, status, step = mechanics.run_series(self.state.values, self.mech_params, self.period, forces, friction,
                                                   mocap, bool(actuator_step), float(stop_travel_mm),
                                                   np.array(travel_rule, dtype=np.float64), out)
         if done < n:                                        # stopped early: leave the streams where
@@ -222,7 +222,7 @@ class Rig:
                 g.bit_generator.state = st
             streams[0].standard_normal(done)
             streams[1].standard_normal((done, self.n_mocap))
-        self.k_period += done                               # the periods before a failing one count
+        self.period += done                               # the periods before a failing one count
         self.last_sar_seen = {}
         if done:
             self.prev_sar = float(out[done - 1, mechanics.C_SAR])
