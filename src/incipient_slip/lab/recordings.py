@@ -146,6 +146,33 @@ def read_series(path: str | Path, *, spring_n_per_mm: float | None = None,
         raise RecordingError(path, f"no messages on {', '.join(missing)} (a collection recording holds the "
                                    "BioTac slow channels, the object's pose and the actuator's ticks)")
     ticks = got[ActuatorState.TOPIC]
+    tick_ns, t0 = _periods(path, ticks)
+    period_end_s = (tick_ns - t0) / 1e9
+    notes.periods = len(ticks)
+    data = _biotac_streams(path, got, t0)
+    data["mocap_t_s"], data["mocap_y_mm"], notes.mocap_invalid = _mocap(path, got, t0, period_end_s,
+                                                                       meta.get("rig", "sim"))
+    data["period_end_s"] = period_end_s
+    data["normal_force_kpa"], notes.normal_force_from = _normal_force(path, got, tick_ns, t0, normal_force)
+    if spring_n_per_mm is None:
+        if meta.get("rig", "sim") == "hardware" or not meta:
+            raise RecordingError(path, "the spring constant is unknown: give --rig-config FILE (its "
+                                       "calibration: slip calibrate spring) or --spring-n-per-mm")
+        spring_n_per_mm = spring_of_scene(meta)
+    if not (math.isfinite(spring_n_per_mm) and spring_n_per_mm > 0):
+        raise RecordingError(path, f"spring constant {spring_n_per_mm} N/mm is not a positive number")
+    notes.spring_n_per_mm = float(spring_n_per_mm)
+    data.update(_shear(path, ticks, data["mocap_t_s"], data["mocap_y_mm"], period_end_s, spring_n_per_mm))
+    data.update(_truth(got[SimTruth.TOPIC], len(ticks)))
+    data["material"] = np.array(str(meta.get("material", "")))
+    data["injection"] = np.array(_injection(meta, got))
+    data["seed"] = np.int64(int(meta["seed"]) if str(meta.get("seed", "")).lstrip("-").isdigit() else -1)
+    _check_streams(path, data, period_end_s[-1])
+    return data, notes
+
+
+def _periods(path, ticks: list) -> tuple[np.ndarray, int]:
+    """(the ticks' stamps, the time origin: period 0's start) of the actuator's period ticks."""
     if [m.period for m in ticks] != list(range(len(ticks))):
         raise RecordingError(path, "the actuator's ticks are not periods 0, 1, 2, ... in order")
     if len(ticks) < MIN_PERIODS:
@@ -154,11 +181,11 @@ def read_series(path: str | Path, *, spring_n_per_mm: float | None = None,
     # ticks are events, not samples: a real stage's late move makes a period longer (the streams
     # stay whole), so only a tick stamped before the one before it is a clock fault
     _check_clock(path, ActuatorState.TOPIC, tick_ns, math.inf)
-    t0 = int(tick_ns[0]) - PERIOD_NS                       # period 0 starts one period before its tick
-    period_end_s = (tick_ns - t0) / 1e9
-    n_periods = len(ticks)
-    notes.periods = n_periods
+    return tick_ns, int(tick_ns[0]) - PERIOD_NS            # period 0 starts one period before its tick
 
+
+def _biotac_streams(path, got: dict, t0: int) -> dict:
+    """The BioTac's sample streams (P_AC, electrodes, P_DC, temperatures) from the time origin on."""
     data: dict = {}
     pac = got[BiotacPac.TOPIC]
     if pac:
@@ -172,18 +199,16 @@ def read_series(path: str | Path, *, spring_n_per_mm: float | None = None,
     slow = got[BiotacSlow.TOPIC]
     stamps = np.array([m.stamp_ns for m in slow], dtype=np.int64)
     _check_clock(path, BiotacSlow.TOPIC, stamps, 1.0 / SLOW_RATE_HZ)
+    for key in ("electrode_counts", "pdc_counts", "tac_counts", "tdc_counts"):
+        data[key] = _cut(np.asarray([getattr(m, key) for m in slow], dtype=np.uint16), int(stamps[0]),
+                         SLOW_RATE_HZ, t0, path, BiotacSlow.TOPIC)
+    return data
 
-    def slow_stream(values, dtype):
-        return _cut(np.asarray(values, dtype=dtype), int(stamps[0]), SLOW_RATE_HZ, t0, path, BiotacSlow.TOPIC)
 
-    data["electrode_counts"] = slow_stream([m.electrode_counts for m in slow], np.uint16)
-    data["pdc_counts"] = slow_stream([m.pdc_counts for m in slow], np.uint16)
-    data["tac_counts"] = slow_stream([m.tac_counts for m in slow], np.uint16)
-    data["tdc_counts"] = slow_stream([m.tdc_counts for m in slow], np.uint16)
-
+def _mocap(path, got: dict, t0: int, period_end_s: np.ndarray, rig: str) -> tuple[np.ndarray, np.ndarray, int]:
+    """(sample times from the origin, the object's travel, how many samples were untracked)."""
     poses = got[ObjectPose.TOPIC]
     tracked = [m for m in poses if m.tracking_valid]
-    notes.mocap_invalid = len(poses) - len(tracked)
     if len(tracked) < 2:
         raise RecordingError(path, f"{ObjectPose.TOPIC}: {len(tracked)} tracked sample(s)")
     pose_ns = np.array([m.stamp_ns for m in tracked], dtype=np.int64)
@@ -194,45 +219,36 @@ def read_series(path: str | Path, *, spring_n_per_mm: float | None = None,
     first_period = mocap_t_s < period_end_s[0]
     if not first_period.any():
         raise RecordingError(path, f"{ObjectPose.TOPIC}: no tracked sample in period 0 (the object's origin)")
-    y0 = float(np.mean(y_abs[first_period]))   # at rest in period 0: the spring is slack (stage at its origin)
-    data["mocap_t_s"] = mocap_t_s
-    data["mocap_y_mm"] = y_abs - y0 if meta.get("rig", "sim") != "sim" else y_abs
     # rig_sim's travel is already from 0 (the simulator's own origin): kept as recorded, so a simulated
     # recording's mocap stream is the in-process one; a real rig's is moved to its period-0 rest
+    # (at rest in period 0: the spring is slack, the stage at its origin)
+    y_mm = y_abs if rig == "sim" else y_abs - float(np.mean(y_abs[first_period]))
+    return mocap_t_s, y_mm, len(poses) - len(tracked)
 
-    data["period_end_s"] = period_end_s
-    data["normal_force_kpa"], notes.normal_force_from = _normal_force(path, got, tick_ns, t0, normal_force)
+
+def _shear(path, ticks: list, mocap_t_s: np.ndarray, mocap_y_mm: np.ndarray, period_end_s: np.ndarray,
+           spring_n_per_mm: float) -> dict:
+    """The stage during each period (from the origin), the object at its end, and F_T = k_s (u - y)."""
     positions = np.array([m.position_mm for m in ticks])
     step = positions[1] - positions[0]
     during = np.concatenate([[positions[0] - step], positions[:-1]])      # the stage in period k
     u = during - during[0]
     # the object at the period's end: its last sample before the end (the one stamped at the end
     # belongs to the next period, whose F_N already moved the contact)
-    last = np.searchsorted(data["mocap_t_s"], period_end_s - 0.5e-9, side="left") - 1
+    last = np.searchsorted(mocap_t_s, period_end_s - 0.5e-9, side="left") - 1
     if (last < 0).any():
         raise RecordingError(path, f"{ObjectPose.TOPIC}: no tracked sample in period {int(np.argmax(last < 0))}")
-    y_end = data["mocap_y_mm"][last]
-    if spring_n_per_mm is None:
-        if meta.get("rig", "sim") == "hardware" or not meta:
-            raise RecordingError(path, "the spring constant is unknown: give --rig-config FILE (its "
-                                       "calibration: slip calibrate spring) or --spring-n-per-mm")
-        spring_n_per_mm = spring_of_scene(meta)
-    if not (math.isfinite(spring_n_per_mm) and spring_n_per_mm > 0):
-        raise RecordingError(path, f"spring constant {spring_n_per_mm} N/mm is not a positive number")
-    notes.spring_n_per_mm = float(spring_n_per_mm)
-    data["tangential_force_n"] = spring_n_per_mm * (u - y_end)
-    data["actuator_mm"] = u
-    data["object_y_mm"] = y_end
-    truth = {m.period: m for m in got[SimTruth.TOPIC]}
-    rows = [truth.get(k) for k in range(n_periods)]
-    data["stick_area_ratio"] = np.array([r.stick_area_ratio if r else np.nan for r in rows])
-    data["load_ratio_stick"] = np.array([r.stick_ratio if r else np.nan for r in rows])
-    data["gross_slip"] = np.array([bool(r.gross_slip) if r else False for r in rows])
-    data["material"] = np.array(str(meta.get("material", "")))
-    data["injection"] = np.array(_injection(meta, got))
-    data["seed"] = np.int64(int(meta["seed"]) if str(meta.get("seed", "")).lstrip("-").isdigit() else -1)
-    _check_streams(path, data, period_end_s[-1])
-    return data, notes
+    y_end = mocap_y_mm[last]
+    return {"tangential_force_n": spring_n_per_mm * (u - y_end), "actuator_mm": u, "object_y_mm": y_end}
+
+
+def _truth(truths: list, n_periods: int) -> dict:
+    """The simulator's truth per period (NaN / False where a period has none: real rigs)."""
+    by_period = {m.period: m for m in truths}
+    rows = [by_period.get(k) for k in range(n_periods)]
+    return {"stick_area_ratio": np.array([r.stick_area_ratio if r else np.nan for r in rows]),
+            "load_ratio_stick": np.array([r.stick_ratio if r else np.nan for r in rows]),
+            "gross_slip": np.array([bool(r.gross_slip) if r else False for r in rows])}
 
 
 def _normal_force(path, got: dict, tick_ns: np.ndarray, t0: int, source: str) -> tuple[np.ndarray, str]:
