@@ -66,6 +66,16 @@ def test_shared_contact_is_the_simulated_rig_with_its_inputs_read_from_the_devic
     assert shared.period(2) is shared.outputs[2]          # periods are stepped once, then kept
 
 
+def test_shared_contact_hides_its_calibration_in_the_scene_values_and_leaves_the_scene_as_loaded():
+    hidden = {("contact", "newton_per_kpa"): 0.55, ("stick_slip", "spring_n_per_mm"): 0.05}
+    shared = SharedContact("paper", "pla", 0, overrides=hidden)
+    assert shared.press.newton_per_kpa == 0.55
+    assert shared.rig.scene.params["stick_slip"]["spring_n_per_mm"] == 0.05
+    assert load_scene("paper").params["contact"]["newton_per_kpa"] == 0.4
+    with pytest.raises(KeyError, match="contact.no_such_key"):
+        SharedContact("paper", "pla", 0, overrides={("contact", "no_such_key"): 1.0})
+
+
 def test_biotac_channels_follow_the_contact_clock():
     clock = iter([100.0, 100.0, 100.7, 100.7])
     shared = SharedContact("paper", "pla", 1, depth_mm=lambda: 3.4, clock=lambda: next(clock))

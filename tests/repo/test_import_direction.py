@@ -113,16 +113,6 @@ IDENTIFY_ALLOWED = {
 }
 
 
-def test_identify_modules_point_down_inside_the_package():
-    known = modules()
-    inside = {n for n in known if n.startswith("identify.")}
-    assert inside == set(IDENTIFY_ALLOWED), "a new module of identify/ needs its place in IDENTIFY_ALLOWED"
-    for name in sorted(inside):
-        targets = {_known(m, known) for m in imports_of(name, known[name])}
-        bad = {t for t in targets if t and t.startswith("identify") and t != name} - IDENTIFY_ALLOWED[name]
-        assert not bad, f"{name} imports {sorted(bad)}; inside identify/ it may import {sorted(IDENTIFY_ALLOWED[name])}"
-
-
 # inside the control package: the law and the period clock are the base; the answerer returns the
 # law's decisions as wire commands; the judge asks the period closers (one per mode) when a period
 # is closed
@@ -135,14 +125,20 @@ CONTROL_ALLOWED = {
 }
 
 
-def test_control_modules_point_down_inside_the_package():
+# a package whose modules are layers too -> its table (IDENTIFY_ALLOWED, CONTROL_ALLOWED)
+INNER_ORDERS = {"identify": IDENTIFY_ALLOWED, "control": CONTROL_ALLOWED}
+
+
+@pytest.mark.parametrize("package", sorted(INNER_ORDERS))
+def test_modules_point_down_inside_their_package(package):
+    order, table = INNER_ORDERS[package], f"{package.upper()}_ALLOWED"
     known = modules()
-    inside = {n for n in known if n.startswith("control.")}
-    assert inside == set(CONTROL_ALLOWED), "a new module of control/ needs its place in CONTROL_ALLOWED"
+    inside = {n for n in known if n.startswith(f"{package}.")}
+    assert inside == set(order), f"a new module of {package}/ needs its place in {table}"
     for name in sorted(inside):
         targets = {_known(m, known) for m in imports_of(name, known[name])}
-        bad = {t for t in targets if t and t.startswith("control") and t != name} - CONTROL_ALLOWED[name]
-        assert not bad, f"{name} imports {sorted(bad)}; inside control/ it may import {sorted(CONTROL_ALLOWED[name])}"
+        bad = {t for t in targets if t and t.startswith(package) and t != name} - order[name]
+        assert not bad, f"{name} imports {sorted(bad)}; inside {package}/ it may import {sorted(order[name])}"
 
 
 # --- siblings: node -> node and experiment -> experiment -----------------------------------------

@@ -24,6 +24,7 @@ import time
 from array import array
 
 from incipient_slip.devices import biotac as bt
+from incipient_slip.devices.queues import waiting
 
 FRAMES_PER_BATCH = 5            # 50 ms batches, as in SynTouch's library
 PIPELINE = 4                    # batches submitted ahead
@@ -87,11 +88,7 @@ class CheetahLink:
                 self._connect(now)
             return []
         readings = []
-        while True:
-            try:
-                item = self._frames.get_nowait()
-            except queue.Empty:
-                break
+        for item in waiting(self._frames):
             if isinstance(item, Exception):
                 self._drop(f"Cheetah adapter failed ({item}); reconnecting", now)
                 self.reconnects += 1

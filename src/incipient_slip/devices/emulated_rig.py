@@ -51,6 +51,7 @@ import numpy as np
 from incipient_slip.devices import biotac as bt
 from incipient_slip.devices.biotac_emulator import PeriodSignals
 from incipient_slip.sim.rig import PeriodOutput, Rig, load_scene
+from incipient_slip.sim.scene import with_values
 
 KEEP_PERIODS = 40          # periods kept for a sensor clock running behind (20 s)
 NATNET_BODY_ID = 1
@@ -122,30 +123,16 @@ def wav_rms(path: str | Path, window_s: float) -> float | None:
     return float(np.sqrt(np.mean((pcm / 32767.0) ** 2)))
 
 
-def with_overrides(scene, overrides: dict):
-    """The scene with {"section.key": value} of its params replaced (the emulated rig's hidden
-    calibration: the finger's newton_per_kpa, the rail's spring); ValueError for an unknown key."""
-    if not overrides:
-        return scene
-    import copy
-    import dataclasses
-    params = copy.deepcopy(scene.params)
-    for name, value in overrides.items():
-        section, _, key = name.partition(".")
-        if key not in params.get(section, {}):
-            raise ValueError(f"no scene parameter {name!r} to override")
-        params[section][key] = float(value)
-    return dataclasses.replace(scene, params=params)
-
-
 class SharedContact:
-    """The one simulated contact every emulator reads and writes; steps in real time."""
+    """The one simulated contact every emulator reads and writes; steps in real time.
+    `overrides` ({(section, key): value}) replaces scene params (the hidden calibration:
+    the finger's newton_per_kpa, the rail's spring; `sim.scene.with_values`)."""
 
     def __init__(self, scene: str = "paper", material: str = "", seed: int = 0, *,
                  actuator_mm=lambda: 0.0, depth_mm=lambda: 0.0, pzt_rms=lambda: None,
                  rated_rms: float = 0.25, pzt_on_rms: float = 1e-4, clock=time.monotonic,
                  overrides: dict | None = None):
-        loaded = with_overrides(load_scene(scene), overrides or {})
+        loaded = with_values(load_scene(scene), overrides or {})
         self.rig = Rig(loaded, material or loaded.materials[0], seed)
         self.press = HertzPress.of(self.rig)
         self.period_s = self.rig.period_s
@@ -253,12 +240,11 @@ class EmulatedRig:
         self.tcp_start = list(self.ur.tcp_pose)
         self.natnet = NatNetEmulator(natnet_version, address="127.0.0.1", command_port=natnet_command_port,
                                      data_port=natnet_data_port, body_id=NATNET_BODY_ID)
+        hidden = {("contact", "newton_per_kpa"): newton_per_kpa, ("stick_slip", "spring_n_per_mm"): spring_n_per_mm}
         self.shared = SharedContact(
             scene, material, seed, actuator_mm=lambda: self.zaber.position_mm - self.start_mm,
             depth_mm=self.depth_mm, pzt_rms=lambda: wav_rms(self.pzt_path, pzt_window_s),
-            rated_rms=rated_rms, overrides={k: v for k, v in (("contact.newton_per_kpa", newton_per_kpa),
-                                                              ("stick_slip.spring_n_per_mm", spring_n_per_mm))
-                                            if v is not None})
+            rated_rms=rated_rms, overrides={k: float(v) for k, v in hidden.items() if v is not None})
         slave = BiotacSpiSlave(ContactSignals(self.shared), serial="BT-EMU-0001")
         self.biotac = PtyBridgeServer(EmulatedBridge([slave]), self.biotac_link)
 

@@ -12,6 +12,8 @@ import socket
 import time
 from dataclasses import dataclass
 
+from incipient_slip.devices.queues import waiting
+
 RTDE_PORT = 30004
 RUNTIME_PLAYING = 2         # RTDE runtime_state: the control script runs
 SCRIPT_START_S = 10.0       # longest wait for the receive interface to see the script run (liveness)
@@ -201,11 +203,7 @@ class RobotLink:
         """The newest press job waiting (older ones are refused: a late move is a wrong move);
         None when a quit was waiting too. A waiting recovery goes back on the queue."""
         others = []
-        while True:
-            try:
-                newer = self.jobs.get_nowait()
-            except queue.Empty:
-                break
+        for newer in waiting(self.jobs):
             if newer[0] == "press":
                 self.events.put(("refused", f"period {job[1]}: superseded by period {newer[1]} "
                                             f"before the robot could apply it"))

@@ -89,30 +89,28 @@ def _upgraded(body: bytes, topic: str) -> Message | None:
     return _validate_fields(cls, {**obj, "v": version}, topic)
 
 
-def decode_recorded(body: bytes, topic: str = "?") -> Message:
-    """The message in a recorded body, of the current version or of an older one in UPGRADES
-    (read as the current version); MessageError for anything else, as `decode_any`."""
+def _recorded(body: bytes, topic: str) -> tuple[Message, bool]:
+    """(the message in a recorded body, whether the body was of an older version in UPGRADES);
+    MessageError for anything else, as `decode_any`."""
     try:
-        return decode_any(body, topic)
+        return decode_any(body, topic), False
     except MessageError as exc:
         if exc.field != "v":
             raise
         msg = _upgraded(body, topic)
         if msg is None:
             raise
-        return msg
+        return msg, True
+
+
+def decode_recorded(body: bytes, topic: str = "?") -> Message:
+    """The message in a recorded body, of the current version or of an older one in UPGRADES
+    (read as the current version); MessageError for anything else, as `decode_any`."""
+    return _recorded(body, topic)[0]
 
 
 def current_body(body: bytes, topic: str = "?") -> bytes:
     """The body at the current version: `body` itself when it is current, else the older body
     upgraded and re-encoded (stamp and seq kept); MessageError for a malformed body."""
-    try:
-        decode_any(body, topic)
-        return body
-    except MessageError as exc:
-        if exc.field != "v":
-            raise
-        msg = _upgraded(body, topic)
-        if msg is None:
-            raise
-        return encode(msg)
+    msg, upgraded = _recorded(body, topic)
+    return encode(msg) if upgraded else body

@@ -55,7 +55,9 @@ class Estimator(Node):
     def check_inputs(cls, params: dict, name: str = "estimator"):
         """The model file `model` (or the shipped one of method and label) loaded and checked
         against method, window and label; ParamError naming the file (a launch: before any node
-        starts, so a missing model is not found after the rig has begun). Returns (model, path)."""
+        starts, so a missing model is not found after the rig has begun). Returns (model, path,
+        the `LabelRule` the model was trained on). The launcher runs it in its own process before
+        it starts the node processes; the node runs it once more in its own, in `__init__`."""
         label = params["label"]
         if not params["model"] and label and label not in SHIPPED_LABELS:
             raise ParamError(f"node {name!r}: no shipped models are trained on label {label!r} (shipped: "
@@ -69,12 +71,11 @@ class Estimator(Node):
         if label and trained_on.name != label:
             raise ParamError(f"node {name!r}: model {path} was trained on label {trained_on.name!r}, "
                              f"not {label!r} (label:={trained_on.name}, or another model:=)")
-        return model, path
+        return model, path, trained_on
 
     def __init__(self, **kwargs):
         super().__init__("estimator", **kwargs)
-        model, path = self.check_inputs(self.params, self.name)
-        trained_on = rule_of_header(model.header)
+        model, path, trained_on = self.check_inputs(self.params, self.name)
         self.core = PeriodEstimator(model, PERIOD_NS, round(self.param("stale_after_s") * 1e9),
                                     self.param("wall_timeout_s"))
         pac = model.spec.stream == "pac"

@@ -35,13 +35,13 @@ from __future__ import annotations
 
 import math
 import multiprocessing
-import queue
 import time
 
 from incipient_slip import control
 from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.devices import calibration
+from incipient_slip.devices.queues import waiting
 from incipient_slip.devices.rig_config import apply_rig_config
 from incipient_slip.devices.ur5 import LinkConfig, PressLoop, link_main
 from incipient_slip.messages import BiotacSlow, GripCommand, RobotRecover, RobotState
@@ -172,11 +172,7 @@ class UR5(Node):
             if time.monotonic() >= self.respawn_at:
                 self._spawn()
             return
-        while True:
-            try:
-                event = self.events.get_nowait()
-            except queue.Empty:
-                break
+        for event in waiting(self.events):
             self.on_event(event)
             if self.respawn_at is not None or self.stopping:
                 return
