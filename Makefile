@@ -18,10 +18,15 @@ $(STAMP): pyproject.toml
 # is removed first; a figure that cannot be drawn is reported and never changes the run's
 # result). Exit 1 is the run ending on the paper's failure condition, a result of the
 # experiment, reported as such; a crash or fault (any other code) fails the demo.
+# Launch args given to make are passed on: `make demo label:=pseudo` (or label=pseudo) runs
+# `launch stabilize.yaml label:=pseudo` (make reads `x:=y` as its own variable, which it would
+# otherwise swallow); only stabilize.yaml's own args are passed, and summary stays the demo's.
 DEMO_SUMMARY := runs/stabilize_summary.json
 DEMO_FIGURE := runs/stabilize_run.png
+DEMO_LAUNCH_ARGS := $(filter-out summary,$(shell sed -n 's/^ *- arg: {name: \([a-z_0-9]*\),.*/\1/p' launch/stabilize.yaml))
+DEMO_ARGS := $(strip $(foreach a,$(DEMO_LAUNCH_ARGS),$(if $(filter command line,$(origin $(a))),$(a):=$($(a)))))
 demo: $(STAMP)
-	@rm -f $(DEMO_SUMMARY); $(BIN)/launch stabilize.yaml summary:=$(DEMO_SUMMARY); code=$$?; \
+	@rm -f $(DEMO_SUMMARY); $(BIN)/launch stabilize.yaml $(DEMO_ARGS) summary:=$(DEMO_SUMMARY); code=$$?; \
 	if [ -f $(DEMO_SUMMARY) ]; then \
 	  $(BIN)/slip run plot $(DEMO_SUMMARY) -o $(DEMO_FIGURE) || echo "demo: no figure (the run's result stands)"; fi; \
 	if [ $$code -eq 1 ]; then \
