@@ -27,3 +27,22 @@ def test_a_study_trained_on_a_pool_of_methods_equals_the_study_trained_in_proces
     for ta, tb in zip(a.table(), b.table()):
         assert ta["method"] == tb["method"] and ta["params"] == tb["params"]
         np.testing.assert_allclose(tb["rmse_mean"], ta["rmse_mean"], rtol=1e-12)
+
+
+def test_the_data_hash_is_of_the_data_not_of_the_simulator_source(fake_injection_dir, tmp_path):
+    """A refactor of sim/ that keeps every array changes meta.json's physics_fingerprint (a hash
+    of the source); before, that changed every shipped model's training_data_hash, so a fresh
+    `slip reproduce models` could not give the committed files. A changed series still counts."""
+    import json
+    import shutil
+
+    from incipient_slip.models.dataset import dataset_hash, series_paths
+    copy = tmp_path / "copy"
+    shutil.copytree(fake_injection_dir, copy)
+    meta = json.loads((copy / "meta.json").read_text())
+    meta["physics_fingerprint"] = "0123456789abcdef"
+    (copy / "meta.json").write_text(json.dumps(meta, indent=3))
+    assert dataset_hash(copy) == dataset_hash(fake_injection_dir)
+    first = series_paths(copy)[0]
+    first.write_bytes(first.read_bytes()[:100] + b"x" + first.read_bytes()[101:])
+    assert dataset_hash(copy) != dataset_hash(fake_injection_dir)

@@ -131,11 +131,16 @@ def dataset_hash(data_dir: str | Path) -> str:
     """Return a short content hash of a data set (meta.json + file names and sizes + heads).
 
     Cheap on purpose (a paper-scale set is gigabytes): it hashes meta.json, each series file's
-    name and size and its first 64 KiB, enough to tell two generated sets apart.
+    name and size and its first 64 KiB, enough to tell two generated sets apart. The meta's
+    `physics_fingerprint` is left out: it hashes the simulator's source, so a refactor that keeps
+    every array bit for bit (tests/data/sim_series.json) changed it, and with it every shipped
+    model's `training_data_hash`, although the models were the same to the byte.
     """
     h = hashlib.sha256()
     data_dir = Path(data_dir)
-    h.update((data_dir / "meta.json").read_bytes())
+    meta = json.loads((data_dir / "meta.json").read_text())
+    meta.pop("physics_fingerprint", None)
+    h.update(json.dumps(meta, sort_keys=True).encode())
     for p in series_paths(data_dir):
         h.update(p.name.encode())
         h.update(str(p.stat().st_size).encode())
