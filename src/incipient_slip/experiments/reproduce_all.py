@@ -41,7 +41,7 @@ def add_all_parser(sub, run_one) -> None:
                        description=__doc__.split("\n\n")[0])
     budget = p.add_mutually_exclusive_group()
     budget.add_argument("--quick", dest="budget", action="store_const", const="quick",
-                        help="every experiment's quick preview (WORK only; records the quick times)")
+                        help="every experiment's quick preview (WORK only: no tracked file changes unless --record-quick-times)")
     budget.add_argument("--full", dest="budget", action="store_const", const="full",
                         help="the full budget behind docs/ (default)")
     p.set_defaults(budget="full", func=cmd_all, run_one=run_one)
