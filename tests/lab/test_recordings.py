@@ -60,7 +60,7 @@ def imported(session, tmp_path_factory):
     out = tmp_path_factory.mktemp("imported")
     report = import_recordings(session[0], out)
     assert not report.dropped and len(report.imported) == 2
-    return out
+    return out / "injection"
 
 
 @pytest.mark.slow
@@ -199,7 +199,7 @@ def test_a_session_import_reports_the_drops_and_keeps_the_rest(recording, tmp_pa
     assert "imported 1 series" in done.stdout and "b_gap.mcap: seq gap on /biotac/pac" in done.stdout
     report = json.loads((out / "import_report.json").read_text())
     assert [d["file"].endswith("b_gap.mcap") for d in report["dropped"]] == [True]
-    assert sorted(p.name for p in out.glob("series_*.npz")) == ["series_00000.npz"]
+    assert sorted(p.name for p in (out / "injection").glob("series_*.npz")) == ["series_00000.npz"]
 
 
 def test_a_real_rigs_recording_needs_its_spring_constant_and_takes_f_n_from_p_dc(recording, tmp_path):

@@ -47,10 +47,10 @@ def test_collect_import_train_evaluate_and_hold_on_the_emulated_rig(tmp_path):
         assert {s["normal_force_from"] for s in report["imported"]} == {"robot"}
         assert all(s["gross_slip"] for s in report["imported"]), report["imported"]
 
-        trained = run("incipient_slip.cli", "train", "--method", "injection", "--data", str(data), "--label",
+        trained = run("incipient_slip.cli", "train", "--method", "injection", "--data", str(data / "injection"), "--label",
                       "measured-ratio", "--quick", "--out", str(model), env=env, timeout=300)
         assert trained.returncode == 0, trained.stderr
-        evaluated = run("incipient_slip.cli", "evaluate", "--data", str(data), "--model", str(model), env=env, timeout=300)
+        evaluated = run("incipient_slip.cli", "evaluate", "--data", str(data / "injection"), "--model", str(model), env=env, timeout=300)
         assert evaluated.returncode == 0 and "RMSE" in evaluated.stdout, evaluated.stdout + evaluated.stderr
 
         summary = tmp_path / "run.json"

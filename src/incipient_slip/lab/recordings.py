@@ -374,8 +374,9 @@ def _read_one(options: tuple, path: Path):
 
 def import_recordings(src: str | Path, out: str | Path, *, spring_n_per_mm: float | None = None,
                       normal_force: str = "auto", progress=None, workers: int | None = None) -> ImportReport:
-    """Write the data set(s) of a directory of collection recordings; one per injection setting
-    present (`out` itself when there is one, else out/injection and out/no_injection). Recordings
+    """Write the data set(s) of a directory of collection recordings: out/injection and/or
+    out/no_injection, one per injection setting present (always that layout, so the training
+    command does not depend on which settings a session held). Recordings
     are read by `workers` forked processes (default: all cores), in index order."""
     import json
 
@@ -396,7 +397,7 @@ def import_recordings(src: str | Path, out: str | Path, *, spring_n_per_mm: floa
     kinds = sorted({bool(d["injection"]) for _, _, d, _ in read}, reverse=True)
     out = Path(out)
     for inj in kinds:
-        where = out if len(kinds) == 1 else out / ("injection" if inj else "no_injection")
+        where = out / ("injection" if inj else "no_injection")
         where.mkdir(parents=True, exist_ok=True)
         (where / "meta.json").unlink(missing_ok=True)
         for stale in where.glob("series_*.npz"):
