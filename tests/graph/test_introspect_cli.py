@@ -174,3 +174,10 @@ def test_topic_pub_does_not_wait_for_a_reader_on_demand_and_info_marks_it(graph,
         code, out, err = slip(graph, probe, "topic", "pub", "/sim/truth", "{period: 1}", "--wait", "20")
     assert code == 0, err
     assert "readers" not in out and out.startswith("published SimTruth"), out
+
+
+def test_topic_pub_with_no_reader_in_the_graph_says_nothing_was_sent(graph, probe):
+    """Before, with no graph running it printed 'published ...' and exited 0."""
+    code, out, err = slip(graph, probe, "topic", "pub", "/slip/estimate", "{stick_ratio: 0.5}")
+    assert code == 1 and "no node of the graph" in err and "nothing was sent" in err, (out, err)
+    assert "published" not in out
