@@ -56,6 +56,9 @@ def test_no_action_runs_all_steps():
 def test_replay_rig_swaps_the_simulator_for_replay():
     got = nodes(load(find_launch_file("stabilize.yaml"), {"rig": "replay", "recording": "x.mcap"}))
     assert "rig_sim" not in got and got["replay"].params["path"] == "x.mcap"
+    # a recording's stamps may be a device rig's wall clock: its own ticks place the periods
+    # (tests/bags/test_replay_wall_clock.py replays one)
+    assert got["estimator"].params["period_origin"] == got["supervisor"].params["period_origin"] == "tick"
 
 
 @pytest.mark.parametrize("method", ["injection", "e19", "none"])

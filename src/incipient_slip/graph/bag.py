@@ -541,8 +541,8 @@ class TopicInfo:
     last_log_ns: int = 0
     first_stamp_ns: int = 0
     last_stamp_ns: int = 0
-    seq_gaps: int = 0       # messages missing between consecutive seqs (as a subscriber counts)
-    _last_seq: int = field(default=0, repr=False, compare=False)
+    seq_gaps: int = 0       # messages missing between consecutive seqs of one publisher
+    _last_seq: dict = field(default_factory=dict, repr=False, compare=False)   # publisher -> seq
 
     @property
     def rate_hz(self) -> float:
@@ -557,17 +557,33 @@ class TopicInfo:
         span = self.last_stamp_ns - self.first_stamp_ns
         return (self.count - 1) * 1e9 / span if self.count > 1 and span > 0 else 0.0
 
-    def add(self, log_ns: int, stamp_ns: int, sequence: int) -> None:
-        """Counts one message (given in receive order)."""
+    def add(self, log_ns: int, stamp_ns: int, sequence: int, publisher=None) -> None:
+        """Counts one message (given in receive order). Seqs are each publisher's own, so gaps
+        are counted per `publisher` (`publisher_of`; None: the topic's one publisher)."""
         if self.count == 0:
             self.first_log_ns, self.first_stamp_ns = log_ns, stamp_ns
-        else:
-            gap = (sequence - self._last_seq - 1) % _SEQUENCE_MOD
+        last = self._last_seq.get(publisher)
+        if last is not None:
+            gap = (sequence - last - 1) % _SEQUENCE_MOD
             self.seq_gaps += gap if gap < _SEQUENCE_MOD // 2 else 0
-        self._last_seq = sequence
+        self._last_seq[publisher] = sequence
         self.count += 1
         self.last_log_ns = max(self.last_log_ns, log_ns)
         self.last_stamp_ns = max(self.last_stamp_ns, stamp_ns)
+
+
+def publisher_of(type_name: str, body) -> tuple[str, int] | None:
+    """Who sent a recorded message, where its body says so: a `Heartbeat` names its node and pid
+    (every node beats on /heartbeat, each with seqs of its own). Other topics have one publisher
+    each (as a subscriber counts them, graph/endpoints.py): None. A body that does not decode
+    (never written by the recorder) is None too."""
+    if type_name != "Heartbeat":
+        return None
+    try:
+        msg = decode_recorded(bytes(body), "/heartbeat")
+    except ValueError:          # MessageError
+        return None
+    return msg.node, msg.pid
 
 
 @dataclass
@@ -641,7 +657,8 @@ class BagInfo:
 
 def bag_info(path: str | os.PathLike, *, damaged_ok: bool = False,
              progress: Callable[[int], object] | None = None) -> BagInfo:
-    """The summary of a recording (reads every message record once, decodes none).
+    """The summary of a recording (reads every message record once; decodes only the heartbeats,
+    whose node and pid tell their publishers apart for the seq gaps).
 
     A file that is unfinished or corrupt is a BagError, unless `damaged_ok`: then the
     summary counts what `recover()` would save and `damage` says what is lost.
@@ -660,7 +677,7 @@ def bag_info(path: str | os.PathLike, *, damaged_ok: bool = False,
         t = topics.get(rec.topic)
         if t is None:
             t = topics[rec.topic] = TopicInfo(rec.topic, rec.type_name)
-        t.add(rec.log_time_ns, rec.stamp_ns, rec.sequence)
+        t.add(rec.log_time_ns, rec.stamp_ns, rec.sequence, publisher_of(rec.type_name, rec.body))
     with _open(path) as f:          # the header is the first record; it survives any cut
         try:
             from mcap.stream_reader import StreamReader
@@ -682,7 +699,8 @@ def _finished_info(path: str) -> BagInfo:
                   for cid, ch in sorted(summary.channels.items())}
         try:
             for _schema, channel, rec in reader.iter_messages(log_time_order=True):
-                topics[channel.id].add(rec.log_time, rec.publish_time, rec.sequence)
+                t = topics[channel.id]
+                t.add(rec.log_time, rec.publish_time, rec.sequence, publisher_of(t.type_name, rec.data))
         except Exception as exc:
             raise _corrupt(path, exc) from None
     return BagInfo(path, os.path.getsize(path), profile,

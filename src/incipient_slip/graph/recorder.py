@@ -15,15 +15,24 @@ No message waits in memory longer than `flush_s` (0.5 s): the open chunk is fini
 written and fsync'd when its oldest message is that old, and by a timer when traffic stops.
 A recorder killed with SIGKILL (or a power cut) so loses at most the last `flush_s` of
 messages; `slip bag recover` turns the unfinished file into a finished one.
+
+Its own heartbeat (the one message it sends, recorded with the rest) is on the clock of the run
+it records (docs/graph.md, "One time base"). With `$SLIP_CLOCK=sim` (a launch on the simulated
+rig) it carries the latest stamp recorded (1 ns before any), as a node's carries the latest stamp
+it sent. Without `$SLIP_CLOCK` (`slip bag record`, started by hand beside any run) it does not
+know the run's clock until it has recorded a message: from then on its heartbeat carries the
+latest stamp recorded, and the heartbeats it sent before that (on the wall clock) are not
+recorded. `$SLIP_CLOCK=wall`: the wall clock.
 """
 from __future__ import annotations
 
+import os
 import time
 
-from incipient_slip.messages import Message, MessageError, decode_any
+from incipient_slip.messages import Heartbeat, Message, MessageError, decode_any
 from incipient_slip.graph.bag import FLUSH_S, BagError, BagWriter
 from incipient_slip.graph.params import Param, ParamError
-from incipient_slip.graph.runtime import ANY_TOPIC, Node, run_node
+from incipient_slip.graph.runtime import ANY_TOPIC, CLOCK_ENV, Node, run_node
 
 
 class Recorder(Node):
@@ -53,6 +62,13 @@ class Recorder(Node):
             raise ParamError(f"node {self.name!r}: parameter 'path': {exc}") from None
         self.create_timer(self.param("flush_s"), self.bag.flush)   # when traffic stops
         self.dropped = 0
+        # the run's clock is the stamps it records, unless the launch says the wall clock; its
+        # heartbeats from this seq on are on the run's clock (None: not known yet)
+        clock = os.environ.get(CLOCK_ENV)
+        self.follows_stamps = clock != "wall"
+        self.clocked_from_seq: int | None = 0 if clock else None
+        self.pid = os.getpid()
+        self.unclocked_beats = 0                   # its own heartbeats not recorded for that
         self.subs = [self.create_raw_subscription(self.on_message, topic)
                      for topic in self.param("topics") or [None]]
         self.log(f"recording {', '.join(self.param('topics')) or 'all topics'} to {self.bag.path}")
@@ -67,6 +83,14 @@ class Recorder(Node):
             self.malformed += 1         # reported in this node's heartbeat
             self.warn(throttle_s=1.0, key=("rec-drop", topic), text=f"not recorded, malformed: {exc}")
             return
+        if type(msg) is Heartbeat and msg.node == self.name and msg.pid == self.pid:
+            if self.clocked_from_seq is None or msg.seq < self.clocked_from_seq:
+                self.unclocked_beats += 1     # sent on the wall clock before the run's clock was known
+                return
+        elif self.follows_stamps and msg.stamp_ns > (self.run_clock_ns or 0):
+            self.run_clock_ns = msg.stamp_ns         # its heartbeat's stamp from now on
+            if self.clocked_from_seq is None and self._hb_pub is not None:
+                self.clocked_from_seq = self._hb_pub.seq     # the next heartbeat's seq
         self.bag.write(topic, msg, log_time_ns=recv_ns, body=body)
         if self.param("max_messages") and self.recorded >= self.param("max_messages"):
             self.shutdown(f"recorded max_messages={self.param('max_messages')}")
@@ -97,7 +121,9 @@ class Recorder(Node):
                 received = sum(sub.received for sub in self.subs)
                 self.log(f"received {received}, wrote {self.recorded} messages on "
                          f"{len(bag.counts)} topics to {bag.path}"
-                         + (f" ({self.dropped} malformed dropped)" if self.dropped else ""))
+                         + (f" ({self.dropped} malformed dropped)" if self.dropped else "")
+                         + (f" ({self.unclocked_beats} of its own heartbeats, sent before it knew the run's "
+                            f"clock, not recorded)" if self.unclocked_beats else ""))
 
 
 def main(argv=None):

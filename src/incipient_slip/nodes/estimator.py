@@ -8,7 +8,8 @@ must fit the stream, its header's label must be `label` when one is given, and i
 methods). The scheduling by stamps, validity after seq gaps and stale streams, and the
 wall-clock watchdog are `models.estimator_core.PeriodEstimator`; this node wires it.
 
-`period_origin: tick` (device clocks, rig:=emulated and hardware): the sensor's stamps are host
+`period_origin: tick` (device clocks, rig:=emulated and hardware; rig:=replay, whose recording may
+be of either): the sensor's stamps are host
 time, so period k is not stamp // T. Period k then ends at the stamp of the actuator's tick for
 step k (`control.PeriodOrigin`): the core sees stamps relative to the first tick's origin;
 frames before that tick wait (at most `origin_buffer_s`) and are then replayed, those before the

@@ -10,7 +10,7 @@ wall-clock timeout is a fault ("graph silent"); before the first command that cl
 rig's first message (readiness), not at this node's start. `lockstep: true` (the simulated rig waits for
 each command): a period is judged once its command, the rig's tick that ends it (after all its
 data) and its estimate are in, never on `data_wait_s`; the wall-clock timeouts are liveness limits only. `period_origin: tick` (device clocks, host-time
-stamps): pose and F_N stamps are taken on the period clock that the actuator's first tick sets
+stamps; a replayed recording): pose and F_N stamps are taken on the period clock that the actuator's first tick sets
 (`control.PeriodOrigin`), as the estimator does. It publishes `RunEvent`s, writes the JSON run
 summary (also when interrupted) with the per-period traces (`/sim/truth`, the simulated rig's true
 stick ratio and F_T, goes into the traces only, never into a verdict; in lock-step the summary waits
