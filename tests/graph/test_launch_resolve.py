@@ -383,3 +383,19 @@ def test_choices_that_are_not_a_list_of_values_are_a_file_error(choices):
 def test_a_default_outside_the_choices_is_refused_too():
     with pytest.raises(LaunchError, match=r'f.yaml:2: launch arg rig:="sim" is not one of replay'):
         load_text("launch:\n  - arg: {name: rig, default: sim, choices: [replay]}\n", {}, "f.yaml")
+
+
+@pytest.mark.parametrize("file, rig, node", [("stabilize.yaml", "sim", "rig_sim"),
+                                             ("stabilize.yaml", "emulated", "emulated_rig"),
+                                             ("collect.yaml", "emulated", "emulated_rig"),
+                                             ("identify.yaml", "sim", "rig_sim")])
+def test_an_unknown_material_is_refused_before_any_node_starts(capsys, file, rig, node):
+    """material:=wood was found by rig_sim once the graph was up: the supervisor printed its
+    nan-filled summary of an interrupted run before the one line that named the material."""
+    from incipient_slip.graph.launch.resolve import check_node_inputs
+    with pytest.raises(LaunchError, match=rf"{file if rig == 'sim' else 'rig_emulated.yaml'}:\d+: "
+                       rf"node '{node}': parameter material:=\"wood\": material 'wood' is not in scene"):
+        check_node_inputs(load(file, {"rig": rig, "material": "wood"}))
+    assert main([file, f"rig:={rig}", "material:=wood"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "'wood'" in err and "starting" not in err, err
