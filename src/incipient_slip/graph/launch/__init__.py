@@ -35,7 +35,8 @@ Each publisher is told the readers of its outputs and waits for them by name at 
 How a launch ends: a required node that exits ends it with that node's code (0 when it finished
 cleanly, e.g. a supervisor at the end of a run; 2 when it refused its input, a param or a file;
 128+N when signal N killed it, or stopped it cleanly when sent from outside the launch: 143 for
-SIGTERM, an interrupted run), its last line repeated last. A node that exits 2 is not respawned.
+SIGTERM, an interrupted run), its last line repeated last. A node that exits 2 is not respawned;
+if other nodes wait for it as a reader, it ends the launch with 2 as a required node would.
 Ctrl-C or SIGTERM stops every node (SIGTERM in reverse start order, then SIGKILL after the grace
 period; a second Ctrl-C kills at once) and exits 130 (143 for SIGTERM). A stop that needed SIGKILL
 exits 3 (a fault), unless a required node had already exited non-zero. When every node has exited
