@@ -1,9 +1,13 @@
-"""Where the repository's data directories are: launch files, scenes and shipped models.
+"""Where the repository's data directories are: launch files, scenes and shipped models; and
+where a run's output file goes (`prepare_output`: its folder created, writable).
 
 The project is installed editable, so the repository root is two levels above this package.
 """
 from __future__ import annotations
 
+import errno
+import os
+import tempfile
 from pathlib import Path
 
 
@@ -35,3 +39,29 @@ def runs_dir() -> Path:
 def docs_dir() -> Path:
     """Return docs/ at the repository root (the hand-written pages the experiments write into)."""
     return repo_root() / "docs"
+
+
+def prepare_output(path: str | Path) -> Path:
+    """Makes an output file writable where it goes: creates its folder (as the run summary always
+    did) and writes and removes a probe file there. OSError otherwise (a folder that cannot be
+    created or written, a directory at `path`); `output_error` words it in one line."""
+    path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(errno.EISDIR, "is a directory", str(path))
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:     # a file where a folder of the path should be
+        blocker = next(p for p in reversed(path.parents) if p.exists() and not p.is_dir())
+        raise NotADirectoryError(errno.ENOTDIR, "a file, not a folder", str(blocker)) from None
+    fd, probe = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".probe", dir=path.parent)
+    os.close(fd)
+    os.unlink(probe)
+    if path.exists() and not os.access(path, os.W_OK):
+        raise PermissionError(errno.EACCES, "not writable", str(path))
+    return path
+
+
+def output_error(exc: OSError) -> str:
+    """An OSError of an output path in one line: 'No such file or directory: /proc/nope'."""
+    reason = exc.strerror or str(exc)
+    return f"{reason}: {exc.filename}" if exc.filename else reason

@@ -2,13 +2,15 @@
 from __future__ import annotations
 
 import json
+import re
 import textwrap
 from pathlib import Path
 
 import pytest
 import yaml
 
-from incipient_slip.graph.launch import LaunchError, load_text, main
+from incipient_slip import paths
+from incipient_slip.graph.launch import LaunchError, load, load_text, main, parse_document
 from incipient_slip.graph.runtime import READERS_ENV
 
 NODES = Path(__file__).parent / "nodes"
@@ -328,3 +330,72 @@ def test_a_missing_or_wrong_model_is_refused_before_any_node_starts_naming_the_f
     e19 = model_dir() / "e19.npz"                     # a model of another method
     with pytest.raises(LaunchError, match=r"node 'estimator': .*e19"):
         check_node_inputs(load("stabilize.yaml", {"model": str(e19)}))
+
+
+# --- args with a fixed set of values (choices:) ----------------------------------------------
+
+@pytest.mark.parametrize("file, arg, value, listing", [
+    ("stabilize.yaml", "rig", "simulated", "sim, replay, emulated, hardware"),
+    ("stabilize.yaml", "view", "foxgloves", "none, foxglove"),
+    ("stabilize.yaml", "method", "e20", "injection, vibrotactile, e19, e10, e4, e1, none"),
+    ("stabilize.yaml", "lockstep", "ture", "true, false"),
+    ("collect.yaml", "rig", "replay", "sim, emulated, hardware"),
+    ("collect.yaml", "injection", "yes", "true, false"),
+    ("identify.yaml", "rig", "simulated", "sim, emulated, hardware"),
+])
+def test_a_value_outside_an_args_choices_is_refused_before_anything_starts(capsys, file, arg, value, listing):
+    """rig:=simulated matched no `if:` (six "no node writes" warnings, then a launch that waited
+    for ever) and view:=foxgloves ran without a viewer: both were accepted."""
+    assert main([file, f"{arg}:={value}", "--print"]) == 2
+    err = capsys.readouterr().err
+    assert err.strip().splitlines() == [err.strip()] and "starting" not in err
+    assert re.search(rf"launch: error: .*{file}:\d+: launch arg {arg}:=\"{value}\" is not one of "
+                     rf"{re.escape(listing)}$", err.strip()), err
+
+
+def test_an_empty_choice_says_what_it_means():
+    """label:=psuedo listed its choices as 'is not one of , pseudo, ...' (an empty first one)."""
+    with pytest.raises(LaunchError) as info:
+        load("stabilize.yaml", {"label": "psuedo"})
+    text = str(info.value)
+    assert 'label:="psuedo" is not one of "", measured-ratio, pseudo, true-ratio (label: ' in text
+    assert '"" = measured-ratio, or the label model:= was trained on' in text and "of , " not in text
+
+
+def test_the_launch_files_choices_are_the_nodes_choices():
+    """The choices of method:= and label:= are the estimator's and the controller's values."""
+    from incipient_slip.messages import METHODS
+    from incipient_slip.models.labels import LABELS
+    choices = {}
+    for action in parse_document(Path(paths.launch_dir() / "stabilize.yaml").read_text()):
+        if action.kind == "arg" and "choices" in action.keys:
+            choices[action.keys["name"]] = action.keys["choices"]
+    assert choices["method"] == list(METHODS)
+    assert sorted(choices["label"]) == sorted(("",) + LABELS)
+
+
+@pytest.mark.parametrize("choices", ["sim", "[]", "[[a], b]"])
+def test_choices_that_are_not_a_list_of_values_are_a_file_error(choices):
+    with pytest.raises(LaunchError, match=r"f.yaml:2: key 'choices': arg 'rig': expected a list of values"):
+        load_text(f"launch:\n  - arg: {{name: rig, default: sim, choices: {choices}}}\n", {}, "f.yaml")
+
+
+def test_a_default_outside_the_choices_is_refused_too():
+    with pytest.raises(LaunchError, match=r'f.yaml:2: launch arg rig:="sim" is not one of replay'):
+        load_text("launch:\n  - arg: {name: rig, default: sim, choices: [replay]}\n", {}, "f.yaml")
+
+
+@pytest.mark.parametrize("file, rig, node", [("stabilize.yaml", "sim", "rig_sim"),
+                                             ("stabilize.yaml", "emulated", "emulated_rig"),
+                                             ("collect.yaml", "emulated", "emulated_rig"),
+                                             ("identify.yaml", "sim", "rig_sim")])
+def test_an_unknown_material_is_refused_before_any_node_starts(capsys, file, rig, node):
+    """material:=wood was found by rig_sim once the graph was up: the supervisor printed its
+    nan-filled summary of an interrupted run before the one line that named the material."""
+    from incipient_slip.graph.launch.resolve import check_node_inputs
+    with pytest.raises(LaunchError, match=rf"{file if rig == 'sim' else 'rig_emulated.yaml'}:\d+: "
+                       rf"node '{node}': parameter material:=\"wood\": material 'wood' is not in scene"):
+        check_node_inputs(load(file, {"rig": rig, "material": "wood"}))
+    assert main([file, f"rig:={rig}", "material:=wood"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "'wood'" in err and "starting" not in err, err

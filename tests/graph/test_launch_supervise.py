@@ -177,6 +177,26 @@ def test_a_publisher_waits_for_its_named_reader_not_for_a_recorder_started_befor
     assert "[listener] first seq 0" in out and "[listener] done 20 gaps 0" in out
 
 
+def test_a_reader_that_refuses_its_input_ends_the_launch_its_publishers_wait_for_it(graph):
+    """view:=foxglove with the viewer's port taken: the bridge (not required: if it dies mid-run
+    the run goes on) exited at start, and every publisher waited for it as a named reader until
+    its wait_timeout_s (300 s in stabilize.yaml). A node that exits 2 (bad input) while others
+    wait for it ends the launch with 2 and its line."""
+    proc = launch(graph, f"""
+        launch:
+          - node: {{exec: {TALKER}, required: true,
+                    param: [{{name: wait_readers, value: true}}, {{name: count, value: 5}}]}}
+          - node: {{exec: {LISTENER}, param: [{{name: refuse, value: true}}]}}
+    """)
+    rc, out, err = finish(proc, timeout=60)
+    assert rc == 2, err
+    assert "listener exited with exit code 2 (bad input) and talker waits for it" in err
+    assert err.rstrip().splitlines()[-1] == ("[launch] launch ends with code 2: node listener exit code 2: "
+                                             "Listener: node 'listener': refused its input (as a port taken "
+                                             "since the check)")
+    assert os.listdir(graph.dir) == []
+
+
 def test_a_gate_that_fails_ends_the_launch_before_the_nodes_after_it_start(graph):
     proc = launch(graph, f"""
         launch:

@@ -408,3 +408,36 @@ def test_a_launched_bridge_advertises_the_launchs_topics_before_any_node_has_sta
     assert "/replayed" not in client.topics()          # of no known type: when first heard
     assert {info.name for info in discovery.scan(graph.dir)} == {"foxglove_bridge"}
     client.close()
+
+
+@pytest.fixture
+def busy_port():
+    """A port another program listens on."""
+    import socket
+    with socket.socket() as other:
+        other.bind(("127.0.0.1", 0))
+        other.listen()
+        yield other.getsockname()[1]
+
+
+def test_a_busy_or_invalid_viewer_port_is_refused_before_the_launch_starts(busy_port, capsys):
+    """view_port:= taken: an OSError traceback in the bridge, and a launch whose nodes waited for
+    it (Ctrl-C, then SIGKILL); view_port:=99999: an OverflowError traceback, and the same wait."""
+    from incipient_slip.graph.launch import main
+    for port, says in ((busy_port, f"cannot listen on 127.0.0.1:{busy_port} (Address already in use): "
+                                   "another program (a viewer bridge?) has it; pick another port"),
+                       (99999, "parameter port:=99999 is above its range [0, 65535]")):
+        assert main(["stabilize.yaml", "view:=foxglove", f"view_port:={port}", "view_wait_s:=0", "steps:=5"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and err.startswith("launch: error: ") and "node 'foxglove_bridge'" in err
+        assert says in err and "starting" not in err, err
+
+
+def test_slip_view_on_a_busy_or_invalid_port_is_one_line_and_exit_2(graph, busy_port):
+    """slip view --port 99999 was a traceback and exit 1; so was a port in use."""
+    for port, says in ((busy_port, f"cannot listen on 127.0.0.1:{busy_port} (Address already in use)"),
+                       (99999, "parameter port:=99999 is above its range [0, 65535]")):
+        proc = graph.spawn(["python", "-m", "incipient_slip.cli", "view", "--port", str(port)])
+        _, err = proc.communicate(timeout=60)
+        lines = err.decode().strip().splitlines()
+        assert proc.returncode == 2 and len(lines) == 1 and says in lines[0], lines

@@ -22,6 +22,8 @@ from incipient_slip.nodes.supervisor import Supervisor
     (RigSim, "normal_force_kpa:=9", "normal_force_kpa:=9.0 is above its range"),
     (Supervisor, "max_steps:=-5", "max_steps:=-5 must be >= 1"),
     (Estimator, "method:=none", 'method:="none" is not one of'),
+    # the empty choice was listed as nothing ("is not one of , pseudo, ..."); it says what it means
+    (Estimator, "label:=psuedo", 'label:="psuedo" is not one of "", pseudo, measured-ratio, true-ratio (label: '),
 ])
 def test_out_of_range_parameter_is_exit_2_with_one_line(graph, capsys, node, arg, says):
     assert run_node(node, [arg]) == 2

@@ -42,7 +42,10 @@ class Param:
         """`value` if it is inside the declaration; ParamError naming the parameter otherwise."""
         where = f"node {node!r}: parameter {name}:={format_value(value)}"
         if self.choices is not None and value not in self.choices:
-            raise ParamError(f"{where} is not one of {', '.join(map(str, self.choices))}")
+            listing = ", ".join('""' if c == "" else str(c) for c in self.choices)
+            # an empty choice means what the help says (e.g. the model's own label)
+            meaning = f" ({name}: {self.help})" if "" in self.choices and self.help else ""
+            raise ParamError(f"{where} is not one of {listing}{meaning}")
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             if self.finite and not math.isfinite(value):
                 raise ParamError(f"{where} is not a finite number")

@@ -30,8 +30,9 @@ import os
 import time
 
 from incipient_slip.messages import Heartbeat, Message, MessageError, decode_any
+from incipient_slip.paths import output_error, prepare_output
 from incipient_slip.graph.bag import FLUSH_S, BagError, BagWriter
-from incipient_slip.graph.params import Param, ParamError
+from incipient_slip.graph.params import Param, ParamError, format_value
 from incipient_slip.graph.runtime import ANY_TOPIC, CLOCK_ENV, Node, run_node
 
 
@@ -41,7 +42,7 @@ class Recorder(Node):
     SIGNAL_ENDS_NORMALLY = True      # Ctrl-C is how it ends
 
     PARAMS = {
-        "path": Param("recording.mcap", help="the MCAP file to write (replaced if it exists)"),
+        "path": Param("recording.mcap", help="the MCAP file to write (replaced if it exists; its folder created)"),
         "topics": Param([], help="topics to record; [] records every topic of the graph"),
         "compression": Param("zstd", choices=("zstd", "lz4", "none"), help="chunk compression"),
         "max_messages": Param(0, lo=0, help="end the node after this many (0: until stopped)"),
@@ -53,8 +54,19 @@ class Recorder(Node):
     INPUTS = {ANY_TOPIC: Message}     # every topic of the graph (see graph/launch/topology.py)
     OUTPUTS: dict = {}
 
+    @classmethod
+    def check_inputs(cls, params: dict, name: str = "recorder"):
+        """The recording's folder created (as the supervisor's summary's) and writable; ParamError
+        naming `path` otherwise (a launch: before any node starts)."""
+        try:
+            prepare_output(params["path"])
+        except OSError as exc:
+            raise ParamError(f"node {name!r}: parameter path:={format_value(params['path'])}: "
+                             f"cannot write the recording there ({output_error(exc)})") from None
+
     def __init__(self, **kwargs):
         super().__init__("recorder", **kwargs)
+        self.check_inputs(self.params, self.name)
         try:
             self.bag = BagWriter(self.param("path"), compression=self.param("compression"),
                                  metadata={**self.param("metadata"), "recorder": self.name}, flush_s=self.param("flush_s"))
@@ -108,13 +120,14 @@ class Recorder(Node):
             if self.recorded + self.dropped == before:
                 return
 
-    def close(self) -> None:
-        """Stops receiving, then finishes the MCAP file (valid even after SIGTERM)."""
+    def close(self, run_hooks: bool = True) -> None:
+        """Stops receiving, then finishes the MCAP file (valid even after SIGTERM). run_node
+        passes run_hooks=False when the constructor failed (Node.close)."""
         bag = getattr(self, "bag", None)
         try:
             if bag is not None and not bag.closed:
                 self.drain()
-            super().close()
+            super().close(run_hooks)
         finally:
             if bag is not None and not bag.closed:
                 bag.close()

@@ -30,7 +30,8 @@ from incipient_slip.graph.runtime import Node, run_node
 
 try:
     from incipient_slip.devices.emulated_rig import EmulatedRig
-    from incipient_slip.sim.scene import SceneError
+    from incipient_slip.nodes.rig_sim import material_of
+    from incipient_slip.sim.scene import SceneError, load_scene
 except ModuleNotFoundError as exc:      # a lab PC's lean install: name the [sim] extra
     raise needed(exc) from None
 
@@ -57,6 +58,15 @@ class EmulatedRigNode(Node):
         "nice": Param(-10, lo=-20, hi=19, help="scheduling priority of the emulators (hardware is never starved)"),
     }
     INPUTS: dict = {}
+
+    @classmethod
+    def check_inputs(cls, params: dict, name: str = "emulated_rig"):
+        """The scene and the material in it, before a launch starts any node (ParamError)."""
+        try:
+            scene = load_scene(control.scene_of(params["scene"], params["method"]))
+        except (SceneError, ValueError) as exc:
+            raise ParamError(f"node {name!r}: parameter 'scene': {exc}") from None
+        material_of(scene, params["material"], name)
 
     def __init__(self, **kwargs):
         super().__init__("emulated_rig", **kwargs)

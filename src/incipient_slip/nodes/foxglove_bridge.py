@@ -18,8 +18,10 @@ the viewer (graph/live_view.py) and runs at a lower CPU priority (`priority`; do
 """
 from __future__ import annotations
 
+import errno
 import importlib.util
 import os
+import socket
 import sys
 import time
 
@@ -31,7 +33,7 @@ from incipient_slip.graph.live_view import (
     AUDIO_BLOCK_FRAMES, DRAIN_QUIET_S, DRAIN_TIMEOUT_S, EXTRA_HINT, PAC_VIEW_HZ, LiveView,
     is_loopback,
 )
-from incipient_slip.graph.params import Param
+from incipient_slip.graph.params import Param, ParamError
 from incipient_slip.graph.runtime import ANY_TOPIC, POLL_S, Node, run_node
 from incipient_slip.messages import PAC_RATE_HZ, Message, MessageError
 
@@ -44,7 +46,8 @@ FOLLOW_S = 0.1      # how often the topics received follow what the clients subs
 class FoxgloveBridge(Node):
     """Serves every topic of the graph as a Foxglove WebSocket channel (JSON + JSON Schema)."""
 
-    PARAMS = {"host": "127.0.0.1", "port": 8765,
+    PARAMS = {"host": Param("127.0.0.1", help="address to bind"),
+              "port": Param(8765, lo=0, hi=65535, help="TCP port of the viewers (0 = any free, printed)"),
               # a lock-step run sends ~4000 messages a second on the layout's topics: 1024 was a
               # quarter second of lag before a client that keeps up on average lost messages
               "backlog": Param(16384, lo=1, help="messages queued per client; the oldest go first"),
@@ -63,6 +66,19 @@ class FoxgloveBridge(Node):
     INPUTS = {ANY_TOPIC: Message}       # every topic of the graph, like the recorder
     OUTPUTS: dict = {}
 
+    @classmethod
+    def check_inputs(cls, params: dict, name: str = "foxglove_bridge"):
+        """The viewers' port can be listened on (a launch: before any node starts; a busy port
+        was a traceback in the bridge and a launch whose nodes waited for it); ParamError."""
+        if params["port"]:
+            family = socket.AF_INET6 if ":" in params["host"] else socket.AF_INET
+            try:
+                with socket.socket(family, socket.SOCK_STREAM) as probe:
+                    probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)   # as the front's
+                    probe.bind((params["host"], params["port"]))
+            except (OSError, OverflowError) as exc:
+                raise listen_error(name, params["host"], params["port"], exc) from None
+
     def __init__(self, **kwargs):
         super().__init__("foxglove_bridge", **kwargs)
         # on a busy machine the loop's nodes get the CPU first; the server's threads, started
@@ -72,10 +88,13 @@ class FoxgloveBridge(Node):
         if not is_loopback(host):
             self.warn(f"serving on {host}, not the loopback address: anyone who reaches it sees "
                       f"the whole graph (the Foxglove WebSocket protocol has no authentication)")
-        self.view = LiveView(host, self.param("port"), backlog=self.param("backlog"),
-                             audio_rate_hz=self.param("audio_rate_hz"),
-                             pac_view_hz=self.param("pac_view_hz"),
-                             audio_block_frames=self.param("audio_block_frames"))
+        try:
+            self.view = LiveView(host, self.param("port"), backlog=self.param("backlog"),
+                                 audio_rate_hz=self.param("audio_rate_hz"),
+                                 pac_view_hz=self.param("pac_view_hz"),
+                                 audio_block_frames=self.param("audio_block_frames"))
+        except OSError as exc:      # taken since the launch's check, or run by hand (slip view)
+            raise listen_error(self.name, host, self.param("port"), exc) from None
         self.on_shutdown(self.finish)
         self.untyped: set[str] = set()     # announced topics of no known type (replay's "raw")
         self.heard = 0                     # messages received from the graph
@@ -147,6 +166,14 @@ class FoxgloveBridge(Node):
             if (now := self.view.watched()) != watched:
                 watched, since = now, time.monotonic()
         self.follow_clients()       # before this node's hello: the sources' first messages come
+
+
+def listen_error(name: str, host: str, port: int, exc: Exception) -> ParamError:
+    """The one line for a port the bridge cannot listen on (run_node: exit 2)."""
+    reason = getattr(exc, "strerror", None) or str(exc)
+    advice = (": another program (a viewer bridge?) has it; pick another port (launch: view_port:=N, "
+              "slip view --port N; 0 = any free)" if getattr(exc, "errno", None) == errno.EADDRINUSE else "")
+    return ParamError(f"node {name!r}: cannot listen on {host}:{port} ({reason}){advice}")
 
 
 def lower_priority(priority: str) -> None:

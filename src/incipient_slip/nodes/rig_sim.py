@@ -56,7 +56,7 @@ from incipient_slip.messages import (
     PAC_RATE_HZ, PAC_SAMPLES_PER_FRAME, PERIOD_NS, ActuatorCommand, ActuatorState, BiotacPac, BiotacSlow, GripCommand, ObjectPose, PztCommand, PztState,
     RobotState, RunEvent, SimTruth,
 )
-from incipient_slip.graph.params import Param, ParamError
+from incipient_slip.graph.params import Param, ParamError, format_value
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.extras import needed
 
@@ -124,21 +124,20 @@ class RigSim(Node):
 
     @classmethod
     def check_inputs(cls, params: dict, name: str = "rig_sim"):
-        """The scene with the params overlay applied; ParamError naming the parameter and the file
-        (run_node reports it in one line, exit 2; a launch before any node starts)."""
+        """The scene with the params overlay applied and the material in it; ParamError naming
+        the parameter and the file (run_node reports it in one line, exit 2; a launch before any
+        node starts: an unknown material once ended a running graph, after the supervisor's
+        empty summary)."""
         try:
-            return load_scene(control.scene_of(params["scene"], params["method"]), params["params"] or None)
+            scene = load_scene(control.scene_of(params["scene"], params["method"]), params["params"] or None)
         except (SceneError, ValueError) as exc:
             raise ParamError(f"node {name!r}: parameter {'params' if params['params'] else 'scene'!r}: "
                              f"{exc}") from None
+        return scene, material_of(scene, params["material"], name)
 
     def __init__(self, **kwargs):
         super().__init__("rig_sim", **kwargs)
-        scene = self.check_inputs(self.params, self.name)
-        material = self.param("material") or scene.materials[0]
-        if material not in scene.materials:
-            raise ParamError(f"node {self.name!r}: parameter 'material' = {material!r} is not in "
-                             f"scene {scene.name!r} ({', '.join(scene.materials)})")
+        scene, material = self.check_inputs(self.params, self.name)
         self.protocol = self.param("protocol")
         self.steps = self.param("steps")
         self.rig = Rig(scene, material, self.param("seed"))
@@ -443,6 +442,14 @@ class RigSim(Node):
                 tdc_counts=tdc[j], pdc_pa_per_count=self.pdc_pa_per_count,
                 pdc_tare_counts=self.pdc_tare, stamp_ns=stamp)))
         return items
+
+
+def material_of(scene, material: str, name: str) -> str:
+    """The node's `material` param in `scene` ("": the scene's first); ParamError naming it."""
+    try:
+        return scene.material(material)
+    except SceneError as exc:
+        raise ParamError(f"node {name!r}: parameter material:={format_value(material)}: {exc}") from None
 
 
 def main(argv=None):

@@ -15,19 +15,23 @@ stamps; a replayed recording): pose and F_N stamps are taken on the period clock
 summary (also when interrupted) with the per-period traces (`/sim/truth`, the simulated rig's true
 stick ratio and F_T, goes into the traces only, never into a verdict; in lock-step the summary waits
 for the last period's truth, at most TRUTH_WAIT_S; `slip run plot` draws them),
-prints one screen and exits 0 (success), 1 (failure) or 3 (fault).
+prints one screen and exits 0 (success), 1 (failure) or 3 (fault); 2 when `summary_path` cannot be
+written (checked before start, its folder created; at the end: after the verdict is printed).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import time
 from pathlib import Path
 
 from incipient_slip import control
-from incipient_slip.graph.params import Param
+from incipient_slip.errors import EXIT_USAGE
+from incipient_slip.graph.params import Param, ParamError, format_value
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.models.labels import DEFAULT_LABEL
+from incipient_slip.paths import output_error, prepare_output
 from incipient_slip.messages import RUN_EVENT_KINDS, ActuatorState, BiotacSlow, GripCommand, ObjectPose, PztState, RobotState, RunEvent, SimTruth, SlipEstimate
 
 POSITIVE = dict(lo=1e-3)
@@ -70,8 +74,20 @@ class Supervisor(Node):
         "recording": Param("", help="the replayed recording (rig:=replay), recorded in the summary"),
     }
 
+    @classmethod
+    def check_inputs(cls, params: dict, name: str = "supervisor"):
+        """The summary's folder created and writable (a launch: before any node starts; an
+        unwritable summary_path was found only at the run's end); ParamError naming it."""
+        if params["summary_path"]:
+            try:
+                prepare_output(params["summary_path"])
+            except OSError as exc:
+                raise ParamError(f"node {name!r}: parameter summary_path:={format_value(params['summary_path'])}: "
+                                 f"cannot write the summary there ({output_error(exc)})") from None
+
     def __init__(self, **kwargs):
         super().__init__("supervisor", **kwargs)
+        self.check_inputs(self.params, self.name)
         p = self.param
         rules = control.SupervisorRules(p("max_travel_mm"), p("safety_limit_kpa"), p("max_steps"),
                                         p("max_consecutive_holds"), p("end_on_failure"), p("stop_on_travel"))
@@ -185,16 +201,23 @@ class Supervisor(Node):
         if path and j.steps == 0 and Path(path).exists():
             path = ""       # a run that judged no period must not replace the last real run's summary
             self.warn(f"no period was judged: {self.param('summary_path')} (an earlier run's) is kept")
+        unwritten = ""
         if path:
-            Path(path).parent.mkdir(parents=True, exist_ok=True)
-            tmp = Path(f"{path}.tmp{os.getpid()}")
-            tmp.write_text(json.dumps(self.summary, indent=1, allow_nan=True))
-            tmp.replace(path)       # readers never see a half-written summary
+            try:
+                write_summary(path, self.summary)
+            except OSError as exc:      # checked at the start; the disk or the folder changed since
+                unwritten = (f"the summary could not be written to {path} ({output_error(exc)}); "
+                             f"the run's verdict: {j.verdict.kind}")
+                path = ""
         if not self.param("quiet"):
             print(control.format_summary(self.summary, path), flush=True)
         self.publish_verdict()
         self.events.publish(RunEvent(stamp_ns=self.input_ns, kind="end", step=j.steps, detail=j.verdict.kind))
-        if j.verdict.kind in control.EXIT_CODES:   # "interrupted": a signal already ends the node
+        if unwritten:       # the verdict is printed and published; the run still fails, naming why
+            if self.stopping:       # on_shutdown (a signal): its exit code stands; say it here
+                self.log(f"error: {unwritten}")
+            self.shutdown(unwritten, exit_code=EXIT_USAGE)      # logged as "shutting down: ..."
+        elif j.verdict.kind in control.EXIT_CODES:   # "interrupted": a signal already ends the node
             self.shutdown(j.verdict.detail, exit_code=control.EXIT_CODES[j.verdict.kind])
 
     def publish_verdict(self) -> None:
@@ -206,6 +229,19 @@ class Supervisor(Node):
         self.verdict_sent = True
         self.events.publish(RunEvent(stamp_ns=self.input_ns, kind=j.verdict.kind, step=j.steps, detail=j.verdict.detail,
                                      object_travel_mm=j.travel_mm, normal_force_kpa=j.force_kpa))
+
+
+def write_summary(path: str, summary: dict) -> None:
+    """The summary as JSON at `path`, its folder created; readers never see a half-written one."""
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(f"{path}.tmp{os.getpid()}")
+    try:
+        tmp.write_text(json.dumps(summary, indent=1, allow_nan=True))
+        tmp.replace(path)
+    except OSError:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
 
 
 def main(argv=None):

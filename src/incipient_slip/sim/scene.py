@@ -65,6 +65,15 @@ class Scene:
         """Return True when the scene computes `effect`."""
         return effect in self.effects
 
+    def material(self, name: str = "") -> str:
+        """`name` if the scene has that material, its first one when `name` is empty; SceneError
+        listing the scene's materials otherwise."""
+        if not name:
+            return self.materials[0]
+        if name not in self.materials:
+            raise SceneError(f"material {name!r} is not in scene {self.name!r} ({', '.join(self.materials)})")
+        return name
+
 
 def _strip(node, where: str, units: dict):
     """Return the parameter tree with each {value, unit, source} leaf replaced by its value."""

@@ -1,19 +1,24 @@
-"""Test node: counts P_AC frames; prints the first seq, a line per `report_every` frames; exits after `count`."""
+"""Test node: counts P_AC frames; prints the first seq, a line per `report_every` frames; exits after `count`.
+`refuse`: its constructor refuses its input once started (exit 2), as a viewer bridge whose port
+was taken after the launch's check does."""
 import sys
 import time
 
 from incipient_slip.messages import BiotacPac
+from incipient_slip.graph.params import ParamError
 from incipient_slip.graph.runtime import Node, run_node
 
 
 class Listener(Node):
-    PARAMS = {"count": 0, "report_every": 0, "start_delay_s": 0.0}
+    PARAMS = {"count": 0, "report_every": 0, "start_delay_s": 0.0, "refuse": False}
     INPUTS = {"/biotac/pac": BiotacPac}
     OUTPUTS: dict = {}
 
     def __init__(self, **kwargs):
         super().__init__("listener", **kwargs)
         time.sleep(self.param("start_delay_s"))     # a slow start (a model being loaded)
+        if self.param("refuse"):
+            raise ParamError("node 'listener': refused its input (as a port taken since the check)")
         self.sub = self.create_subscription(BiotacPac, self.on_pac)
 
     def on_pac(self, msg):

@@ -3,8 +3,8 @@
 The file format follows ROS 2's YAML launch frontend. A top-level `launch:` list of actions:
 
     launch:
-      # which rig feeds the graph
-      - arg: {name: rig, default: sim, description: "sim | replay | hardware"}
+      # which rig feeds the graph; choices: any other value is refused before anything starts
+      - arg: {name: rig, default: sim, choices: [sim, replay, hardware], description: "..."}
       - node:
           exec: estimator            # incipient_slip.nodes.estimator (pkg: graph for the tool
                                      # processes recorder, replay, monitor), a dotted module, or a .py path
@@ -25,7 +25,9 @@ file's directory) and `$(eval EXPR)` (literals, comparisons, and/or/not, arithme
 Python's eval). A condition is `true`/`false` (also 1/0, yes/no) or `A == B` / `A != B`.
 A param value that came from a substitution is re-typed as YAML (`"$(var rate)"` -> 100).
 
-Before anything starts, every node's params are checked against its declared ranges (a bad
+Before anything starts, every arg with `choices:` is checked against them (a value outside:
+exit 2, one line naming the arg, the value and the choices; an empty choice is explained by the
+arg's description), every node's params are checked against its declared ranges (a bad
 value: exit 2, one line naming it) and the topics are drawn from the nodes' INPUTS/OUTPUTS
 (`--print` lists each topic's writers and readers; a topic read but not written is a warning).
 Each publisher is told the readers of its outputs and waits for them by name at start-up.
@@ -33,7 +35,8 @@ Each publisher is told the readers of its outputs and waits for them by name at 
 How a launch ends: a required node that exits ends it with that node's code (0 when it finished
 cleanly, e.g. a supervisor at the end of a run; 2 when it refused its input, a param or a file;
 128+N when signal N killed it, or stopped it cleanly when sent from outside the launch: 143 for
-SIGTERM, an interrupted run), its last line repeated last. A node that exits 2 is not respawned.
+SIGTERM, an interrupted run), its last line repeated last. A node that exits 2 is not respawned;
+if other nodes wait for it as a reader, it ends the launch with 2 as a required node would.
 Ctrl-C or SIGTERM stops every node (SIGTERM in reverse start order, then SIGKILL after the grace
 period; a second Ctrl-C kills at once) and exits 130 (143 for SIGTERM). A stop that needed SIGKILL
 exits 3 (a fault), unless a required node had already exited non-zero. When every node has exited

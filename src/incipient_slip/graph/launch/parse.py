@@ -22,7 +22,7 @@ class LaunchError(Exception):
 
 # the keys each action accepts
 ACTION_KEYS = {
-    "arg": {"name", "default", "description"},
+    "arg": {"name", "default", "description", "choices"},
     "node": {"exec", "pkg", "name", "param", "remap", "required", "respawn", "respawn_delay",
              "gate", "if", "unless", "env"},
     "group": {"actions", "children", "if", "unless"},

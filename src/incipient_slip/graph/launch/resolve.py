@@ -204,8 +204,36 @@ def _resolve_arg(body: Marked, scope: Scope) -> None:
     else:
         raise scope.error(body.line, "default",
                           f"arg {name!r} has no default; give it on the command line: {name}:=VALUE")
+    description = str(body.get("description", ""))
+    if "choices" in body:
+        _check_choice(name, value, body, scope, description)
     scope.vars[name] = value
-    scope.descriptions[name] = str(body.get("description", ""))
+    scope.descriptions[name] = description
+
+
+def _check_choice(name: str, value: Any, body: Marked, scope: Scope, description: str) -> None:
+    """An arg with `choices:` (a list of texts) takes one of them, given or by default: a value
+    outside them is a LaunchError naming the arg, the value and the choices (a misspelt
+    `rig:=` or `view:=` would otherwise drop every node its `if:` names, or the viewer, silently).
+    An empty choice means what the arg's description says; the message repeats it."""
+    line = body.lines["choices"]
+    choices = body["choices"]
+    if not isinstance(choices, list) or not choices or \
+            not all(isinstance(c, (str, int, float, bool)) for c in choices):
+        raise scope.error(line, "choices", f"arg {name!r}: expected a list of values")
+    texts = [_arg_text(c) for c in choices]
+    if _arg_text(value) not in texts:
+        listing = ", ".join(t if t else '""' for t in texts)
+        meaning = f" ({name}: {description})" if "" in texts and description else ""
+        raise LaunchError(f"{scope.file}:{body.line}: launch arg {name}:={format_value(value)} is not "
+                          f"one of {listing}{meaning}")
+
+
+def _arg_text(value: Any) -> str:
+    """An arg value as the text a choice is compared with (true/false for booleans)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return str(value)
 
 
 def _exec_target(exec_: str, pkg: str, scope: Scope, line) -> str:

@@ -10,7 +10,8 @@ Exit codes of a launch (docs/graph.md):
     signal N, also when the node stopped cleanly on SIGTERM/SIGINT sent from outside the launch:
     143, 130 — an interrupted run is not a success; 2 for bad input: a parameter, a model file),
     its last line repeated last;
-  * a node that exits 2 is not respawned (restarting cannot fix its input);
+  * a node that exits 2 is not respawned (restarting cannot fix its input); if other nodes wait
+    for it as a reader (a viewer bridge whose port was taken), it ends the launch with 2;
   * Ctrl-C / SIGTERM: the nodes are stopped; 128 + the signal (130 for Ctrl-C, 143 for
     SIGTERM, as a shell reports it);
   * a stop that needed SIGKILL (at the grace deadline, or at once by a second Ctrl-C): 3, a
@@ -20,6 +21,7 @@ Exit codes of a launch (docs/graph.md):
 """
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -31,6 +33,7 @@ from pathlib import Path
 from incipient_slip.errors import EXIT_FAULT, EXIT_SIGNAL_BASE, EXIT_USAGE
 from incipient_slip.graph import discovery
 from incipient_slip.graph.launch.resolve import LaunchDescription, NodeSpec
+from incipient_slip.graph.runtime import READERS_ENV
 
 __all__ = ["Launcher", "GRACE_S", "EXIT_KILLED"]
 
@@ -210,6 +213,16 @@ class Launcher:
                         self.say(f"launch ends with code {exit_code(rc)}: required node {spec.name} "
                                  f"{describe(rc)}" + (f": {last}" if last else ""))
                     return exit_code(rc)
+                elif rc == EXIT_USAGE and (waiting := self._waiting_for(spec.name)):
+                    # its input was bad (the viewer's port taken since the launch's check): the
+                    # nodes that wait for it as a reader would wait until their wait_timeout_s
+                    self.say(f"{spec.name} exited with {describe(rc)} (bad input) and "
+                             f"{', '.join(waiting)} wait{'s' if len(waiting) == 1 else ''} for it; shutting down the graph")
+                    self._shutdown()
+                    last = proc.last_err.decode(errors="replace").strip()
+                    self.say(f"launch ends with code {rc}: node {spec.name} {describe(rc)}"
+                             + (f": {last}" if last else ""))
+                    return rc
                 else:
                     self.say(f"{spec.name} exited with {describe(rc)}")
                     if rc != 0 and not first_failure:
@@ -218,6 +231,12 @@ class Launcher:
                 self.say("all nodes have exited")
                 return first_failure
             time.sleep(TICK_S)
+
+    def _waiting_for(self, name: str) -> list[str]:
+        """The running nodes told to wait for node `name` as a reader of their outputs."""
+        return [p.spec.name for p in self.procs
+                if p.popen is not None and p.rc is None and p.spec.name != name
+                and any(name in readers for readers in json.loads(p.spec.env.get(READERS_ENV, "{}")).values())]
 
     def _killed_code(self) -> int:
         self.say(f"launch ends with code {EXIT_KILLED}: SIGKILL was needed for "
