@@ -201,18 +201,18 @@ def cmd_topic_pub(args) -> int:
     # a reader "on demand" (the viewer bridge) subscribes only while its own clients want the topic
     readers = [i.name for i in nodes if args.topic in i.subscribes
                or i.subscribes.get(ANY_TOPIC) not in (None, ON_DEMAND)]
-    if not readers and not any(ANY_TOPIC in i.subscribes for i in nodes):
-        # a message nobody reads, not even a viewer on demand, goes nowhere: say so, as a failure
-        print(f"slip topic pub: no node of the graph ({discovery.graph_dir(args.graph)}) reads "
-              f"{args.topic} (is the graph running? `slip topic list`, `slip node list`); nothing was sent",
-              file=sys.stderr, flush=True)
-        return 1
     from incipient_slip.graph.security import FORCE_IDENTITY, TOOL_IDENTITY
     # over tcp the tools' key is read-only (security.py): only --force may write, and only topics
     # the launch reads that no node of it writes (an operator's commands)
     kwargs = {"graph_dir": discovery.graph_dir(args.graph),
               "identity": FORCE_IDENTITY if args.force else TOOL_IDENTITY}
     _check_tool_key(kwargs["graph_dir"], kwargs["identity"], args.topic)
+    if not readers and not any(ANY_TOPIC in i.subscribes for i in nodes):
+        # a message nobody reads, not even a viewer on demand, goes nowhere: say so, as a failure
+        print(f"slip topic pub: no node of the graph ({kwargs['graph_dir']}) reads "
+              f"{args.topic} (is the graph running? `slip topic list`, `slip node list`); nothing was sent",
+              file=sys.stderr, flush=True)
+        return 1
     with _OnePublisher(type(msg), args.topic, **kwargs) as node:
         if readers and not node.pub.wait_for_subscribers(len(readers), args.wait):
             if node.pub.subscriber_count() == 0:      # a message nobody subscribed to goes nowhere
