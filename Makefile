@@ -33,16 +33,17 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -m "not slow" -n 2
 
-# make test-load: `make test`'s selection LOAD_RUNS times (default 3) beside two CPU hogs (busy
-# Python loops, one per core of the 2-core development machine), which it stops at the end; it
-# fails if any run fails. Tests wait for events, never for a fixed time, so load only slows them.
+# make test-load: `make test`'s selection LOAD_RUNS times (default 3) under `nice -n 10` beside two
+# CPU hogs at normal priority (busy Python loops, one per core of the 2-core development machine),
+# which it stops at the end; so the tests get less CPU than the hogs. It fails if any run fails.
+# Tests wait for events, never for a fixed time, so load only slows them.
 LOAD_RUNS ?= 3
 test-load: $(STAMP)
 	@hogs=""; for i in 1 2; do $(BIN)/python -c 'while True: pass' & hogs="$$hogs $$!"; done; \
 	trap 'kill $$hogs' EXIT INT TERM; status=0; \
 	for run in $$(seq $(LOAD_RUNS)); do \
-	  echo "test-load: run $$run of $(LOAD_RUNS) beside two CPU hogs (pids$$hogs)"; \
-	  $(BIN)/python -m pytest -q -m "not slow" -n 2 || status=1; done; \
+	  echo "test-load: run $$run of $(LOAD_RUNS) under nice -n 10 beside two CPU hogs (pids$$hogs)"; \
+	  nice -n 10 $(BIN)/python -m pytest -q -m "not slow" -n 2 || status=1; done; \
 	exit $$status
 
 test-slow: $(STAMP)
