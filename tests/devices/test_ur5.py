@@ -83,6 +83,9 @@ def test_a_receive_interface_that_lags_the_control_interface_is_not_taken_for_a_
         def setWatchdog(self, hz):
             return True
 
+        def kickWatchdog(self):
+            return True
+
     monkeypatch.setitem(sys.modules, "rtde_receive", types.SimpleNamespace(RTDEReceiveInterface=Receive))
     monkeypatch.setitem(sys.modules, "rtde_control", types.SimpleNamespace(RTDEControlInterface=Control))
     server = socket.create_server(("127.0.0.1", 0))
@@ -95,6 +98,56 @@ def test_a_receive_interface_that_lags_the_control_interface_is_not_taken_for_a_
         assert link._refresh() and link.snapshot["state"] == "ready"
     finally:
         server.close()
+
+
+def test_the_watchdog_is_kicked_while_the_link_waits_for_the_receive_side_to_see_the_script(monkeypatch):
+    """The watchdog is armed before the wait for the receive interface's "running": a wait longer
+    than 1/watchdog_hz without a kick stopped the script it waited for (make test-load: the
+    robot fixture's node connected, then found "control script not running" and refused every
+    command). So every step of the wait kicks it: no two reads of the state without a kick."""
+    import socket
+    import types
+
+    from incipient_slip.devices import ur5
+
+    log = []
+
+    class Receive:
+        def __init__(self, *args):
+            self.stale = 20                 # twenty reads (10 ms apart) before the script runs
+
+        def getRuntimeState(self):
+            log.append("read")
+            self.stale -= 1
+            return ur5.RUNTIME_PLAYING if self.stale < 0 else 1
+
+        def getActualTCPPose(self):
+            return [0.4, 0.0, 0.3, 0.0, 0.0, 0.0]
+
+    class Control:
+        def __init__(self, *args):
+            pass
+
+        def setWatchdog(self, hz):
+            log.append("armed")
+            return True
+
+        def kickWatchdog(self):
+            log.append("kick")
+            return True
+
+    monkeypatch.setitem(sys.modules, "rtde_receive", types.SimpleNamespace(RTDEReceiveInterface=Receive))
+    monkeypatch.setitem(sys.modules, "rtde_control", types.SimpleNamespace(RTDEControlInterface=Control))
+    server = socket.create_server(("127.0.0.1", 0))
+    monkeypatch.setattr(ur5, "RTDE_PORT", server.getsockname()[1])
+    cfg = ur5.LinkConfig("127.0.0.1", 125.0, 0.01, 0.1, LOOP, 2, 1.0, 2.0)
+    link = ur5.RobotLink(cfg, None, __import__("queue").Queue(), None)
+    try:
+        link._connect_once()
+    finally:
+        server.close()
+    assert log[0] == "armed" and log.count("read") == 21
+    assert "read read" not in " ".join(log), log
 
 
 # --- against the fake controller -------------------------------------------------------------

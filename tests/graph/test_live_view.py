@@ -441,3 +441,75 @@ def test_slip_view_on_a_busy_or_invalid_port_is_one_line_and_exit_2(graph, busy_
         _, err = proc.communicate(timeout=60)
         lines = err.decode().strip().splitlines()
         assert proc.returncode == 2 and len(lines) == 1 and says in lines[0], lines
+
+
+def test_the_front_drains_only_once_a_slow_client_took_everything_and_gives_up_on_a_stalled_one():
+    """`drain` counted "no byte went to a client for 0.3 s" as "the queues went out"; a client
+    that paused reading for longer (a loaded make test-load run: the test's own client) held the
+    front's copy in a blocked send, which looked quiet, and the bridge closed with the run's last
+    estimates still queued. A copy waiting for its client is not quiet; a client that takes
+    nothing for the timeout is stalled."""
+    import socket
+    import threading
+    import time
+
+    from incipient_slip.graph.live_view_front import SubprotocolFront
+
+    total = 32 * 1024 * 1024                 # more than every socket buffer on the way holds
+    upstream = socket.create_server(("127.0.0.1", 0))
+    held = []
+
+    def serve():                             # the SDK's side: a handshake, then a burst
+        conn, _ = upstream.accept()
+        held.append(conn)
+        head = b""
+        while b"\r\n\r\n" not in head:
+            head += conn.recv(4096)
+        try:
+            conn.sendall(b"HTTP/1.1 101 Switching Protocols\r\n\r\n" + b"x" * total)
+        except OSError:                      # the stalled client's: cut at the end
+            pass
+
+    def client():
+        sock = socket.socket()
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 65536)
+        sock.connect(("127.0.0.1", front.port))
+        sock.sendall(b"GET / HTTP/1.1\r\nHost: x\r\n\r\n")
+        reply = b""
+        while b"\r\n\r\n" not in reply:
+            reply += sock.recv(4096)
+        return sock, len(reply) - reply.index(b"\r\n\r\n") - 4
+
+    front = SubprotocolFront("127.0.0.1", 0, upstream.getsockname()[1])
+    try:
+        threading.Thread(target=serve, daemon=True).start()
+        sock, got = client()
+        time.sleep(1.0)                      # the client pauses: the front's send blocks
+        read = {"n": got}
+
+        def read_all():
+            while read["n"] < total:
+                chunk = sock.recv(1 << 20)
+                if not chunk:
+                    break
+                read["n"] += len(chunk)
+        reader = threading.Thread(target=read_all, daemon=True)
+        reader.start()
+        assert front.drain(0.3, 30.0)
+        assert read["n"] == total            # it went quiet only once the client had it all
+        reader.join(10)
+        sock.close()
+        # a client that never reads: the front gives up after the timeout
+        threading.Thread(target=serve, daemon=True).start()
+        stalled, _ = client()
+        while not front.sending:             # the burst reached the front (a blocked send)
+            time.sleep(0.01)
+        start = time.monotonic()
+        assert not front.drain(0.3, 1.0)
+        assert time.monotonic() - start < 10
+        stalled.close()
+    finally:
+        front.close()
+        upstream.close()
+        for conn in held:
+            conn.close()

@@ -151,8 +151,10 @@ class RobotLink:
         if not watchdog:
             raise RobotError(f"robot {self.host}: the control script did not arm its watchdog")
         # the control interface returns once the script runs; the receive interface's data can
-        # lag it on a loaded host, and a stale "not running" would be taken for a stop
-        self._wait_playing(SCRIPT_START_S)
+        # lag it on a loaded host, and a stale "not running" would be taken for a stop. The
+        # watchdog is armed now: the wait kicks it, or a lag longer than 1/watchdog_hz stops the
+        # script it waits for
+        self._wait_playing(SCRIPT_START_S, kick=True)
         pose = list(self.receive.getActualTCPPose())
         if self.start_pose is None:
             self.start_pose = pose
@@ -216,13 +218,16 @@ class RobotLink:
             self.jobs.put(other)
         return job
 
-    def _wait_playing(self, timeout_s: float) -> bool:
+    def _wait_playing(self, timeout_s: float, kick: bool = False) -> bool:
         """Waits until the receive interface reports the control script running; False after
-        `timeout_s` (then the next refresh reports the stop)."""
+        `timeout_s` (then the next refresh reports the stop). `kick`: the script's watchdog is
+        armed, kick it while waiting."""
         deadline = time.monotonic() + timeout_s
         while self.receive.getRuntimeState() != RUNTIME_PLAYING:
             if time.monotonic() >= deadline:
                 return False
+            if kick:
+                self.control.kickWatchdog()
             time.sleep(0.01)
         return True
 

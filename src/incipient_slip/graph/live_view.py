@@ -32,7 +32,6 @@ from __future__ import annotations
 import ipaddress
 import json
 import threading
-import time
 
 import msgspec
 import numpy as np
@@ -146,15 +145,11 @@ class LiveView:
         return True
 
     def drain(self, quiet_s: float = DRAIN_QUIET_S, timeout_s: float = DRAIN_TIMEOUT_S) -> bool:
-        """Waits until no byte has gone to a client for `quiet_s` (what the server queued for
-        the clients has gone out; a stalled client's queue never does), at most `timeout_s`.
+        """Waits until every client took what was sent to it and no byte has gone to a client for
+        `quiet_s` (what the server queued for the clients has gone out); False once a client took
+        nothing for `timeout_s` while bytes wait for it (a stalled client's queue never goes out).
         True if it went quiet."""
-        deadline = time.monotonic() + timeout_s
-        while self.front.quiet_for() < quiet_s:
-            if time.monotonic() > deadline:
-                return False
-            time.sleep(min(quiet_s, 0.05))
-        return True
+        return self.front.drain(quiet_s, timeout_s)
 
     def close(self) -> None:
         self.front.close()

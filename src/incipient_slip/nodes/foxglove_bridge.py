@@ -123,7 +123,8 @@ class FoxgloveBridge(Node):
         """At shutdown: what the graph sent before it ended still reaches the clients. Reads
         what is queued from the graph (until nothing new for DRAIN_QUIET_S), waits until the
         server's queues have gone out to the clients (`LiveView.drain`), then stops the server;
-        each step at most DRAIN_TIMEOUT_S (a stalled client is not waited for)."""
+        the graph's read at most DRAIN_TIMEOUT_S, the clients' as long as they take what waits for
+        them (a client that took nothing for DRAIN_TIMEOUT_S is stalled, and not waited for)."""
         deadline = last = time.monotonic()
         deadline += DRAIN_TIMEOUT_S
         while (now := time.monotonic()) - last < DRAIN_QUIET_S and now < deadline:
@@ -132,7 +133,7 @@ class FoxgloveBridge(Node):
             if self.heard != heard:
                 last = time.monotonic()
         if not self.view.drain():
-            self.warn(f"a client still had messages queued after {DRAIN_TIMEOUT_S:g} s; closing")
+            self.warn(f"a client took none of the messages queued for it for {DRAIN_TIMEOUT_S:g} s; closing")
         self.view.close()
 
     def offer_announced(self) -> None:
