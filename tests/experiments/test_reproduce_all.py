@@ -67,7 +67,8 @@ def test_all_quick_runs_one_experiment_logs_it_and_records_its_time(tmp_path, ca
     entry = json.loads((docs / "figures" / "reproduce_times.json").read_text())["experiments"]["models"]["quick"]
     assert entry["seconds"] > 0 and len(entry["load_average"]) == 2
     page = (docs / "estimation.md").read_text()
-    assert f"`slip reproduce models --quick` {entry['seconds']:.0f} s" in page
+    from incipient_slip.experiments.timing import duration     # '42 s', or '2.1 min' when slow (loaded)
+    assert f"`slip reproduce models --quick` {duration(entry['seconds'])}" in page
     assert page.replace(page.split("<!-- BEGIN models-time -->")[1].split("<!-- END models-time -->")[0], "") == \
         (docs_dir() / "estimation.md").read_text().replace(
             (docs_dir() / "estimation.md").read_text().split("<!-- BEGIN models-time -->")[1]
