@@ -88,6 +88,15 @@ def format_value(value: Any) -> str:
     return json.dumps(value, separators=(",", ":"))
 
 
+def checked_value(node: str, param: str, value: Any, pick):
+    """`pick(value)`; a ValueError it raises (an unknown material, ...) becomes the ParamError
+    naming the node, the parameter and the value, the one line a launch refuses it with."""
+    try:
+        return pick(value)
+    except ValueError as exc:
+        raise ParamError(f"node {node!r}: parameter {param}:={format_value(value)}: {exc}") from None
+
+
 def parse_node_argv(argv: list[str]) -> NodeArgs:
     """The parameters, remaps and node name in `argv`; ParamError on anything else."""
     out = NodeArgs()

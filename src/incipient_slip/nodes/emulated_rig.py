@@ -25,12 +25,11 @@ import tempfile
 from incipient_slip import control
 from incipient_slip.errors import EXIT_FAULT
 from incipient_slip.extras import needed
-from incipient_slip.graph.params import Param, ParamError
+from incipient_slip.graph.params import Param, ParamError, checked_value
 from incipient_slip.graph.runtime import Node, run_node
 
 try:
     from incipient_slip.devices.emulated_rig import EmulatedRig
-    from incipient_slip.nodes.rig_sim import material_of
     from incipient_slip.sim.scene import SceneError, load_scene
 except ModuleNotFoundError as exc:      # a lab PC's lean install: name the [sim] extra
     raise needed(exc) from None
@@ -66,7 +65,7 @@ class EmulatedRigNode(Node):
             scene = load_scene(control.scene_of(params["scene"], params["method"]))
         except (SceneError, ValueError) as exc:
             raise ParamError(f"node {name!r}: parameter 'scene': {exc}") from None
-        material_of(scene, params["material"], name)
+        checked_value(name, "material", params["material"], scene.material)
 
     def __init__(self, **kwargs):
         super().__init__("emulated_rig", **kwargs)

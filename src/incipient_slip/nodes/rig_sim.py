@@ -56,7 +56,7 @@ from incipient_slip.messages import (
     PAC_RATE_HZ, PAC_SAMPLES_PER_FRAME, PERIOD_NS, ActuatorCommand, ActuatorState, BiotacPac, BiotacSlow, GripCommand, ObjectPose, PztCommand, PztState,
     RobotState, RunEvent, SimTruth,
 )
-from incipient_slip.graph.params import Param, ParamError, format_value
+from incipient_slip.graph.params import Param, ParamError, checked_value
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.extras import needed
 
@@ -133,7 +133,7 @@ class RigSim(Node):
         except (SceneError, ValueError) as exc:
             raise ParamError(f"node {name!r}: parameter {'params' if params['params'] else 'scene'!r}: "
                              f"{exc}") from None
-        return scene, material_of(scene, params["material"], name)
+        return scene, checked_value(name, "material", params["material"], scene.material)
 
     def __init__(self, **kwargs):
         super().__init__("rig_sim", **kwargs)
@@ -442,14 +442,6 @@ class RigSim(Node):
                 tdc_counts=tdc[j], pdc_pa_per_count=self.pdc_pa_per_count,
                 pdc_tare_counts=self.pdc_tare, stamp_ns=stamp)))
         return items
-
-
-def material_of(scene, material: str, name: str) -> str:
-    """The node's `material` param in `scene` ("": the scene's first); ParamError naming it."""
-    try:
-        return scene.material(material)
-    except SceneError as exc:
-        raise ParamError(f"node {name!r}: parameter material:={format_value(material)}: {exc}") from None
 
 
 def main(argv=None):
