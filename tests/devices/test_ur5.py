@@ -9,6 +9,7 @@ from pathlib import Path
 import random
 import signal
 import subprocess
+import contextlib
 import sys
 import time
 
@@ -51,8 +52,6 @@ def test_a_receive_interface_that_lags_the_control_interface_is_not_taken_for_a_
     """The control interface returns once the script runs; the receive interface's data may
     still say "not running" for a while on a loaded host (make test-load: the robot fixture's
     node latched "stopped" at connect). The link waits for the receive side to see it run."""
-    import socket
-    import types
 
     from incipient_slip.devices import ur5
 
@@ -86,18 +85,9 @@ def test_a_receive_interface_that_lags_the_control_interface_is_not_taken_for_a_
         def kickWatchdog(self):
             return True
 
-    monkeypatch.setitem(sys.modules, "rtde_receive", types.SimpleNamespace(RTDEReceiveInterface=Receive))
-    monkeypatch.setitem(sys.modules, "rtde_control", types.SimpleNamespace(RTDEControlInterface=Control))
-    server = socket.create_server(("127.0.0.1", 0))
-    monkeypatch.setattr(ur5, "RTDE_PORT", server.getsockname()[1])
-    cfg = ur5.LinkConfig("127.0.0.1", 125.0, 0.01, 0.1, LOOP, 2, 1.0, 2.0)
-    events = __import__("queue").Queue()
-    link = ur5.RobotLink(cfg, None, events, None)
-    try:
+    with _link_on_fakes(monkeypatch, Receive, Control) as link:
         link._connect_once()
         assert link._refresh() and link.snapshot["state"] == "ready"
-    finally:
-        server.close()
 
 
 def test_the_watchdog_is_kicked_while_the_link_waits_for_the_receive_side_to_see_the_script(monkeypatch):
@@ -105,8 +95,6 @@ def test_the_watchdog_is_kicked_while_the_link_waits_for_the_receive_side_to_see
     than 1/watchdog_hz without a kick stopped the script it waited for (make test-load: the
     robot fixture's node connected, then found "control script not running" and refused every
     command). So every step of the wait kicks it: no two reads of the state without a kick."""
-    import socket
-    import types
 
     from incipient_slip.devices import ur5
 
@@ -136,18 +124,29 @@ def test_the_watchdog_is_kicked_while_the_link_waits_for_the_receive_side_to_see
             log.append("kick")
             return True
 
-    monkeypatch.setitem(sys.modules, "rtde_receive", types.SimpleNamespace(RTDEReceiveInterface=Receive))
-    monkeypatch.setitem(sys.modules, "rtde_control", types.SimpleNamespace(RTDEControlInterface=Control))
+    with _link_on_fakes(monkeypatch, Receive, Control) as link:
+        link._connect_once()
+    assert log[0] == "armed" and log.count("read") == 21
+    assert "read read" not in " ".join(log), log
+
+
+@contextlib.contextmanager
+def _link_on_fakes(monkeypatch, receive, control):
+    """A RobotLink whose ur-rtde interfaces are `receive` and `control`, its RTDE port a local
+    listening socket (the reachability check passes), closed at the end."""
+    import socket
+    import types
+
+    from incipient_slip.devices import ur5
+    monkeypatch.setitem(sys.modules, "rtde_receive", types.SimpleNamespace(RTDEReceiveInterface=receive))
+    monkeypatch.setitem(sys.modules, "rtde_control", types.SimpleNamespace(RTDEControlInterface=control))
     server = socket.create_server(("127.0.0.1", 0))
     monkeypatch.setattr(ur5, "RTDE_PORT", server.getsockname()[1])
     cfg = ur5.LinkConfig("127.0.0.1", 125.0, 0.01, 0.1, LOOP, 2, 1.0, 2.0)
-    link = ur5.RobotLink(cfg, None, __import__("queue").Queue(), None)
     try:
-        link._connect_once()
+        yield ur5.RobotLink(cfg, None, __import__("queue").Queue(), None)
     finally:
         server.close()
-    assert log[0] == "armed" and log.count("read") == 21
-    assert "read read" not in " ".join(log), log
 
 
 # --- against the fake controller -------------------------------------------------------------
