@@ -10,12 +10,15 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import yaml
 
+from incipient_slip.paths import output_error, prepare_output
+
 __all__ = ["ParamError", "Param", "NodeArgs", "parse_node_argv", "parse_value", "format_value", "coerce_param",
-           "merge_params", "check_params", "declared_params"]
+           "merge_params", "check_params", "declared_params", "one_of", "checked_value", "checked_output"]
 
 
 class ParamError(ValueError):
@@ -42,10 +45,7 @@ class Param:
         """`value` if it is inside the declaration; ParamError naming the parameter otherwise."""
         where = f"node {node!r}: parameter {name}:={format_value(value)}"
         if self.choices is not None and value not in self.choices:
-            listing = ", ".join('""' if c == "" else str(c) for c in self.choices)
-            # an empty choice means what the help says (e.g. the model's own label)
-            meaning = f" ({name}: {self.help})" if "" in self.choices and self.help else ""
-            raise ParamError(f"{where} is not one of {listing}{meaning}")
+            raise ParamError(f"{where} is not {one_of(name, self.choices, self.help)}")
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             if self.finite and not math.isfinite(value):
                 raise ParamError(f"{where} is not a finite number")
@@ -86,6 +86,24 @@ def format_value(value: Any) -> str:
     if isinstance(value, float) and not math.isfinite(value):
         return ".nan" if math.isnan(value) else (".inf" if value > 0 else "-.inf")
     return json.dumps(value, separators=(",", ":"))
+
+
+def one_of(name: str, choices, meaning: str = "") -> str:
+    """'one of a, b, ""' for a value outside `choices` (a param's or a launch arg's); an empty
+    choice shows as "" and means what `meaning` (the help, the description) says, so it follows."""
+    texts = ["" if c == "" else str(c) for c in choices]
+    listing = ", ".join(t if t else '""' for t in texts)
+    return f"one of {listing}" + (f" ({name}: {meaning})" if "" in texts and meaning else "")
+
+
+def checked_output(node: str, param: str, path: str, what: str) -> Path:
+    """`prepare_output(path)` (its folder created, writable); an OSError becomes the ParamError
+    naming the node, the parameter and the path, the one line a launch refuses it with."""
+    try:
+        return prepare_output(path)
+    except OSError as exc:
+        raise ParamError(f"node {node!r}: parameter {param}:={format_value(path)}: "
+                         f"cannot write {what} there ({output_error(exc)})") from None
 
 
 def checked_value(node: str, param: str, value: Any, pick):

@@ -30,9 +30,8 @@ import os
 import time
 
 from incipient_slip.messages import Heartbeat, Message, MessageError, decode_any
-from incipient_slip.paths import output_error, prepare_output
 from incipient_slip.graph.bag import FLUSH_S, BagError, BagWriter
-from incipient_slip.graph.params import Param, ParamError, format_value
+from incipient_slip.graph.params import Param, ParamError, checked_output
 from incipient_slip.graph.runtime import ANY_TOPIC, CLOCK_ENV, Node, run_node
 
 
@@ -58,11 +57,7 @@ class Recorder(Node):
     def check_inputs(cls, params: dict, name: str = "recorder"):
         """The recording's folder created (as the supervisor's summary's) and writable; ParamError
         naming `path` otherwise (a launch: before any node starts)."""
-        try:
-            prepare_output(params["path"])
-        except OSError as exc:
-            raise ParamError(f"node {name!r}: parameter path:={format_value(params['path'])}: "
-                             f"cannot write the recording there ({output_error(exc)})") from None
+        checked_output(name, "path", params["path"], "the recording")
 
     def __init__(self, **kwargs):
         super().__init__("recorder", **kwargs)

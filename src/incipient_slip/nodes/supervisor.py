@@ -28,10 +28,10 @@ from pathlib import Path
 
 from incipient_slip import control
 from incipient_slip.errors import EXIT_USAGE
-from incipient_slip.graph.params import Param, ParamError, format_value
+from incipient_slip.graph.params import Param, checked_output
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.models.labels import DEFAULT_LABEL
-from incipient_slip.paths import output_error, prepare_output
+from incipient_slip.paths import output_error
 from incipient_slip.messages import RUN_EVENT_KINDS, ActuatorState, BiotacSlow, GripCommand, ObjectPose, PztState, RobotState, RunEvent, SimTruth, SlipEstimate
 
 POSITIVE = dict(lo=1e-3)
@@ -79,11 +79,7 @@ class Supervisor(Node):
         """The summary's folder created and writable (a launch: before any node starts; an
         unwritable summary_path was found only at the run's end); ParamError naming it."""
         if params["summary_path"]:
-            try:
-                prepare_output(params["summary_path"])
-            except OSError as exc:
-                raise ParamError(f"node {name!r}: parameter summary_path:={format_value(params['summary_path'])}: "
-                                 f"cannot write the summary there ({output_error(exc)})") from None
+            checked_output(name, "summary_path", params["summary_path"], "the summary")
 
     def __init__(self, **kwargs):
         super().__init__("supervisor", **kwargs)

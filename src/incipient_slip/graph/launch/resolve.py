@@ -21,7 +21,7 @@ from incipient_slip import paths
 from incipient_slip.graph.launch.parse import Action, LaunchError, Marked, declared_args, parse_document
 from incipient_slip.graph.launch.substitute import Scope
 from incipient_slip.graph.launch.topology import TOPICS_ENV, NodeTopics, Topology, node_class
-from incipient_slip.graph.params import ParamError, check_params, declared_params, format_value, merge_params
+from incipient_slip.graph.params import ParamError, check_params, declared_params, format_value, merge_params, one_of
 from incipient_slip.graph.runtime import ANY_TOPIC, READERS_ENV, WRITERS_ENV
 
 __all__ = ["NodeSpec", "LaunchDescription", "find_launch_file", "load", "load_text", "NODE_PACKAGES"]
@@ -223,10 +223,8 @@ def _check_choice(name: str, value: Any, body: Marked, scope: Scope, description
         raise scope.error(line, "choices", f"arg {name!r}: expected a list of values")
     texts = [_arg_text(c) for c in choices]
     if _arg_text(value) not in texts:
-        listing = ", ".join(t if t else '""' for t in texts)
-        meaning = f" ({name}: {description})" if "" in texts and description else ""
         raise LaunchError(f"{scope.file}:{body.line}: launch arg {name}:={format_value(value)} is not "
-                          f"one of {listing}{meaning}")
+                          f"{one_of(name, texts, description)}")
 
 
 def _arg_text(value: Any) -> str:
