@@ -34,8 +34,10 @@ def test_each_slot_is_queued_as_the_public_driver_does():
     ch = fake(n=2)
     link = CheetahLink(n_biotacs=2, ch=ch)
     try:
-        poll_until(link, lambda r: link.state == "streaming")
-        slot = ch.submitted[0][:14] if ch.submitted else None
+        # streaming is set before the collecting thread's first submit: wait for both (a loaded
+        # make test-load run read an empty queue just after the state changed)
+        poll_until(link, lambda r: link.state == "streaming" and ch.submitted)
+        slot = ch.submitted[0][:14]
     finally:
         link.close()
     cmd = bt.FRAME_SCHEDULE[0]

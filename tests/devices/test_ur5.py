@@ -85,6 +85,9 @@ def test_a_receive_interface_that_lags_the_control_interface_is_not_taken_for_a_
         def kickWatchdog(self):
             return True
 
+        def isConnected(self):
+            return True
+
     with _link_on_fakes(monkeypatch, Receive, Control) as link:
         link._connect_once()
         assert link._refresh() and link.snapshot["state"] == "ready"
@@ -377,6 +380,28 @@ def test_dropped_connection_is_recovered_and_the_next_period_applies(robot):
     probe.grip.publish(GripCommand(normal_force_kpa=4.0, period=0))
     run(nodes, lambda: any(s.period == 0 for s in probe.states))
     assert ur("state")["commands"][-1] == 3
+
+
+def test_a_hung_link_is_killed_and_replaced(robot):
+    """ur-rtde's control interface, kicked just as the connection drops, reconnects in a loop of
+    its own and never returns (make test-load: "reconnecting" never came in 60 s). A link that
+    sends nothing for link_silence_s is hung: the node kills it and starts a fresh one. SIGSTOP
+    is the hang here; before, the node waited on it for ever."""
+    ur, node, probe, nodes = robot(link_silence_s=1.0)
+    link = node.link
+    os.kill(link.pid, signal.SIGSTOP)
+    try:
+        run(nodes, lambda: any(s.state == "reconnecting" for s in probe.states))
+        assert not link.is_alive() and link.exitcode == -signal.SIGKILL
+        run(nodes, lambda: node.link is not link and probe.states[-1].state == "ready")
+    finally:
+        if link.is_alive():
+            os.kill(link.pid, signal.SIGKILL)
+    probe.force(3.0)
+    t0 = time.monotonic()
+    run(nodes, lambda: node.measured_at >= t0)
+    probe.grip.publish(GripCommand(normal_force_kpa=3.5, period=0))
+    run(nodes, lambda: any(s.period == 0 for s in probe.states))
 
 
 def test_slip_robot_recover_brings_a_protective_stop_back_to_ready(robot, graph):

@@ -229,6 +229,20 @@ def test_a_node_that_declares_no_outputs_still_beats(graph, probe):
         probe.until(lambda: any(b.node == "quiet" for b in beats), 10, nodes=[quiet])
 
 
+def test_a_node_closing_before_its_first_heartbeat_still_sends_one_with_its_counts(graph, probe):
+    """A node's last heartbeat is sent as it closes: rig_sim's lock-step run is shorter than a
+    heartbeat period once it starts, and a loaded test run heard none from it at all."""
+    beats = probe.listen(M.Heartbeat)
+    talker = Node("brief", heartbeat_s=3600.0)
+    pub = talker.create_publisher(M.PztCommand)
+    probe.listen(M.PztCommand)
+    probe.until(lambda: pub.subscriber_count() >= 1, 10, nodes=[talker])
+    talker.malformed = 2
+    talker.close()
+    probe.until(lambda: any(b.node == "brief" for b in beats), 10)
+    assert [b.malformed_dropped for b in beats if b.node == "brief"] == [2]
+
+
 def test_a_script_that_never_closes_its_node_leaves_no_files(graph):
     script = ("from incipient_slip.graph.runtime import Node\n"
               "node = Node('careless')\n"

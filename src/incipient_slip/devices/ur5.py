@@ -234,7 +234,9 @@ class RobotLink:
     def _refresh(self) -> bool:
         """Reads the robot's state (all of it from the receive interface); False on a drop."""
         try:
-            if not self.receive.isConnected():
+            # both: a kick on a control interface that lost its connection enters ur-rtde's
+            # endless reconnect loop and never returns (the node then kills this process)
+            if not (self.receive.isConnected() and self.control.isConnected()):
                 return False
             pose = list(self.receive.getActualTCPPose())
             protective = self.receive.isProtectiveStopped()

@@ -271,7 +271,9 @@ class Node(Peers, Executor):
 
     def close(self, run_hooks: bool = True) -> None:
         """Runs the on_shutdown callbacks (unless `run_hooks` is False: a node whose constructor
-        failed), withdraws the announcement and closes the sockets (bounded linger). Idempotent."""
+        failed), sends a last heartbeat (its final counts; a node that lived less than a heartbeat
+        period sent none before), withdraws the announcement and closes the sockets (bounded
+        linger). Idempotent."""
         if self._closed:
             return
         self._closed = True
@@ -280,6 +282,11 @@ class Node(Peers, Executor):
                 hook()
             except Exception:
                 self.log(f"on_shutdown callback raised:\n{traceback.format_exc()}")
+        if run_hooks and getattr(self, "_hb_pub", None) is not None:
+            try:
+                self._heartbeat()
+            except Exception:       # a socket already gone: nothing to tell
+                pass
         discovery.withdraw(self._info)
         _open_nodes.discard(self)
         self._close_subs()

@@ -17,7 +17,10 @@ which are counted); without a fresh F_N it holds still. Before every move it
 checks protective stop, emergency stop and that the control script runs; on a stop it holds,
 publishes state `stopped` and waits for an explicit recovery (`slip robot recover`, which
 publishes /robot/recover): it never retries motion by itself. A lost connection recreates both
-interfaces in a fresh link process (state `reconnecting`, back-off from 0.5 s to 8 s); the
+interfaces in a fresh link process (state `reconnecting`, back-off from 0.5 s to 8 s), and so
+does a connected link that has sent nothing for `link_silence_s` (ur-rtde's control interface,
+kicked just as the connection drops, enters its own reconnect loop and never returns: the link is
+killed; its watchdog kicks stopped with it, so the robot's script stops by itself); the
 command of that period is not replayed, and the new link takes the press depth from the
 robot's actual pose (never a remembered one), so the step limit holds across the restart.
 `RobotState.period` is the newest period whose move was made (-1 before the first).
@@ -43,7 +46,7 @@ from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.devices import calibration
 from incipient_slip.devices.queues import waiting
 from incipient_slip.devices.rig_config import apply_rig_config
-from incipient_slip.devices.ur5 import LinkConfig, PressLoop, link_main
+from incipient_slip.devices.ur5 import SCRIPT_START_S, LinkConfig, PressLoop, link_main
 from incipient_slip.messages import BiotacSlow, GripCommand, RobotRecover, RobotState
 
 EXIT_NO_DEVICE = 2
@@ -78,6 +81,10 @@ class UR5(Node):
         "state_hz": Param(10.0, lo=0.1, hi=125.0, help="/robot/state rate besides each period"),
         "watchdog_hz": Param(1.0, lo=0.1, hi=50.0,
                              help="the control script stops when not kicked this often (node gone)"),
+        "link_silence_s": Param(5.0, lo=0.5, hi=60.0,
+                                help="a connected robot link that sends nothing this long is hung (in "
+                                     "ur-rtde's reconnect loop): it is killed and a fresh one started; a "
+                                     "recovery is given SCRIPT_START_S more"),
     }
 
     def __init__(self, **kwargs):
@@ -104,6 +111,8 @@ class UR5(Node):
         self.start_pose, self.connected_once = None, False
         self.respawn_at, self.backoff_s = None, 0.5
         self.link = self.jobs = self.events = None
+        self.link_connected, self.link_heard_at = False, -math.inf   # this link's "connected"; its last event
+        self.recovering = False     # a recovery job sent, its outcome not yet heard
         self.measured_kpa = math.nan
         self.measured_at = -math.inf
         self.last_period = None     # the newest period a command arrived for
@@ -153,6 +162,7 @@ class UR5(Node):
 
     def on_recover(self, msg: RobotRecover):
         self.log(f"recovery requested{': ' + msg.note if msg.note else ''}")
+        self.recovering = True
         self.jobs.put(("recover",))
 
     def refuse(self, why: str):
@@ -166,6 +176,7 @@ class UR5(Node):
                                     args=(self.cfg, self.jobs, self.events, self.start_pose))
         self.link.start()
         self.respawn_at = None
+        self.link_connected, self.recovering = False, False
 
     def drain(self):
         if self.respawn_at is not None:
@@ -173,11 +184,22 @@ class UR5(Node):
                 self._spawn()
             return
         for event in waiting(self.events):
+            self.link_heard_at = time.monotonic()
             self.on_event(event)
             if self.respawn_at is not None or self.stopping:
                 return
         if not self.link.is_alive() and self.respawn_at is None:   # died without a word (a crash)
             self.on_event(("dropped", f"robot link process ended (exit {self.link.exitcode})"))
+        elif self.link_connected and (silent := time.monotonic() - self.link_heard_at) > self.silence_limit_s():
+            self.link.kill()                     # hung in ur-rtde: no clean disconnect is possible
+            self.link.join(timeout=2.0)
+            self.on_event(("dropped", f"robot link silent for {silent:.1f} s (hung in ur-rtde's reconnect "
+                                      f"loop); killed, starting a fresh one"))
+
+    def silence_limit_s(self) -> float:
+        """How long a connected link may send nothing: every loop of it sends the robot's state,
+        one move blocks it up to `move_s`, a recovery waits up to SCRIPT_START_S for the script."""
+        return self.param("link_silence_s") + self.cfg.move_s() + (SCRIPT_START_S if self.recovering else 0.0)
 
     def on_event(self, event):
         kind = event[0]
@@ -185,6 +207,7 @@ class UR5(Node):
             self.snapshot = event[1]
         elif kind == "connected":
             self.connected_once, self.start_pose, self.backoff_s = True, event[2], 0.5
+            self.link_connected = True
             self.log(event[1])
         elif kind == "fatal":
             self.log(f"ur5: {event[1]}")
@@ -201,6 +224,7 @@ class UR5(Node):
             self.applied_period = max(self.applied_period, event[1])
             self.publish_state()
         elif kind == "recovery":
+            self.recovering = False
             self.recoveries.append(event[1])
             (self.log if event[1] else self.warn)(event[2])
             self.publish_state()
