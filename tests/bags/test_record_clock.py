@@ -5,18 +5,16 @@ timeline."""
 from __future__ import annotations
 
 import json
-import signal
 import sys
 import time
 
 import numpy as np
 import pytest
 
-from incipient_slip.graph.bag import read_bag
 from incipient_slip.graph.recorder import Recorder
 from incipient_slip.graph.runtime import CLOCK_ENV, Node
 from incipient_slip.messages import PERIOD_NS, BiotacPac, Heartbeat
-from timeline import assert_one_timeline  # noqa: E402
+from timeline import assert_one_timeline, stop_and_read  # noqa: E402
 
 STEPS = 20
 
@@ -36,13 +34,7 @@ def test_slip_bag_record_beside_a_simulated_run_records_its_heartbeat_on_the_run
     assert run.returncode in (0, 1), run.stderr.read().decode()[-3000:]
     after = len(mine())
     probe.until(lambda: len(mine()) >= after + 2, 30, procs=[recorder], what="two more recorder heartbeats")
-    recorder.send_signal(signal.SIGINT)
-    _, err = recorder.communicate(timeout=30)
-    assert recorder.returncode == 0, err.decode()[-3000:]
-
-    received: dict[str, list] = {}
-    for rec in read_bag(out):
-        received.setdefault(rec.topic, []).append(rec.message())
+    received, err = stop_and_read(recorder, out)
     steps = json.loads(summary.read_text())["steps"]
     end_ns = (steps + 2) * PERIOD_NS
     recorded_beats = [m for m in received["/heartbeat"] if m.node == "recorder"]

@@ -10,14 +10,12 @@ starved reader's backlog: rig_sim's heartbeats, the last of its messages, were n
 from __future__ import annotations
 
 import json
-import signal
 import sys
 
 import pytest
 
-from incipient_slip.graph.bag import read_bag
 from incipient_slip.messages import PERIOD_NS, Heartbeat
-from timeline import assert_one_timeline  # noqa: E402
+from timeline import assert_one_timeline, stop_and_read  # noqa: E402
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -32,13 +30,7 @@ def test_every_topic_of_a_simulated_run_is_on_the_runs_simulated_time(graph, pro
                         "steps:=120", "quiet:=true", f"summary:={summary}"])
     probe.until(lambda: proc.poll() is not None, 200, what="the run's end")
     assert proc.returncode in (0, 1), proc.stderr.read().decode()[-3000:]
-    recorder.send_signal(signal.SIGINT)
-    _, err = recorder.communicate(timeout=60)
-    assert recorder.returncode == 0, err.decode()[-3000:]
-
-    received: dict[str, list] = {}
-    for rec in read_bag(out):
-        received.setdefault(rec.topic, []).append(rec.message())
+    received, err = stop_and_read(recorder, out)
     steps = json.loads(summary.read_text())["steps"]
     end_ns = (steps + 2) * PERIOD_NS
     assert {"/heartbeat", "/run/event", "/grip/command", "/slip/estimate", "/robot/state"} <= set(received)
