@@ -91,7 +91,7 @@ def format_value(value: Any) -> str:
 def one_of(name: str, choices, meaning: str = "") -> str:
     """'one of a, b, ""' for a value outside `choices` (a param's or a launch arg's); an empty
     choice shows as "" and means what `meaning` (the help, the description) says, so it follows."""
-    texts = ["" if c == "" else str(c) for c in choices]
+    texts = [str(c) for c in choices]
     listing = ", ".join(t if t else '""' for t in texts)
     return f"one of {listing}" + (f" ({name}: {meaning})" if "" in texts and meaning else "")
 

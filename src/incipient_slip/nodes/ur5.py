@@ -82,9 +82,9 @@ class UR5(Node):
         "watchdog_hz": Param(1.0, lo=0.1, hi=50.0,
                              help="the control script stops when not kicked this often (node gone)"),
         "link_silence_s": Param(5.0, lo=0.5, hi=60.0,
-                                help="a connected robot link that sends nothing this long is hung (in "
-                                     "ur-rtde's reconnect loop): it is killed and a fresh one started; a "
-                                     "recovery is given SCRIPT_START_S more"),
+                                help="a connected robot link that sends nothing this long, plus one move's "
+                                     "time, is hung (in ur-rtde's reconnect loop): it is killed and a fresh "
+                                     f"one started; a recovery is given {SCRIPT_START_S:g} s more"),
     }
 
     def __init__(self, **kwargs):
