@@ -197,7 +197,7 @@ def test_unknown_method_is_refused_at_start(graph, tmp_path):
 def run_lockstep_injection(graph, probe, summary, steps):
     """One lock-step injection run wired as stabilize.yaml wires it, as four processes started
     readers first, with an estimate deadline no loaded machine reaches (the test is about
-    ordering, not about deadlines); returns the supervisor's exit code."""
+    ordering, not about deadlines); returns the supervisor's exit code and what it printed on stderr."""
     def started(name, argv):
         proc = graph.spawn(["python", "-m", f"incipient_slip.nodes.{name}", *argv])
         probe.until(lambda: any(n.name == name and n.subscribes for n in discovery.scan(graph.dir)),
@@ -209,7 +209,8 @@ def run_lockstep_injection(graph, probe, summary, steps):
     started("estimator", ["method:=injection"])
     started("grip_controller", ["method:=injection", "estimate_timeout_s:=60", "wait_subscribers:=2"])
     started("rig_sim", ["scene:=paper", f"steps:={steps}", "wait_subscribers:=1"])
-    return supervisor.wait(60)
+    code = supervisor.wait(60)
+    return code, supervisor.stderr.read().decode(errors="replace")
 
 
 @pytest.mark.timeout(150)
@@ -217,11 +218,12 @@ def test_two_identical_lockstep_runs_write_identical_summaries(graph, probe, tmp
     from incipient_slip.models.estimator_core import default_model_path
     if not default_model_path("injection").exists():
         pytest.skip("shipped model models/injection.npz is missing (slip reproduce models)")
-    results = []
+    results, said = [], []
     for run in range(2):
         summary = tmp_path / f"run{run}.json"
-        code = run_lockstep_injection(graph, probe, summary, steps=30)
-        assert code == 0, (code, summary.exists() and summary.read_text()[:400])
+        code, stderr = run_lockstep_injection(graph, probe, summary, steps=30)
+        assert code == 0, (code, summary.exists() and summary.read_text()[:400], stderr[-2000:])
+        said.append(stderr[-2000:])
         result = json.loads(summary.read_text())
         del result["wall_s"]
         results.append(result)
@@ -233,5 +235,5 @@ def test_two_identical_lockstep_runs_write_identical_summaries(graph, probe, tmp
     for key, trace in results[0]["traces"].items():
         other = results[1]["traces"][key]
         assert json.dumps(trace) == json.dumps(other), (key, [
-            (i, a, b) for i, (a, b) in enumerate(zip(trace, other)) if json.dumps(a) != json.dumps(b)][:5])
+            (i, a, b) for i, (a, b) in enumerate(zip(trace, other)) if json.dumps(a) != json.dumps(b)][:5], said)
     assert json.dumps(results[0]) == json.dumps(results[1])

@@ -102,7 +102,7 @@ def test_start_up_waits_for_the_rig_and_then_a_silent_graph_is_a_fault(graph, tm
     assert "graph silent" in proc.stderr.read().decode()
 
 
-def test_lockstep_summary_waits_for_the_last_periods_truth_within_a_liveness_limit(graph, tmp_path):
+def test_lockstep_summary_waits_for_the_last_periods_truth_within_a_liveness_limit(graph, tmp_path, capfd):
     """/sim/truth travels on its own connection: the last judged period's may come after the
     verdict (two identical lock-step runs once differed in the last truth, NaN in one)."""
     from incipient_slip.nodes import supervisor as sv
@@ -115,6 +115,8 @@ def test_lockstep_summary_waits_for_the_last_periods_truth_within_a_liveness_lim
         assert node.awaits_truth(100.0)                            # period 1's truth not in yet
         assert node.awaits_truth(100.0 + sv.TRUTH_WAIT_S - 0.1)
         assert not node.awaits_truth(100.0 + sv.TRUTH_WAIT_S)      # a liveness limit, not forever
+        said = capfd.readouterr().err                              # and a NaN there is never silent
+        assert "no /sim/truth for the last judged period 1" in said and "the last for period 0" in said
         node.truth_wait_since = None
         j.truth[1] = (0.8, 0.2)
         assert not node.awaits_truth(200.0)                       # in: the summary goes out

@@ -183,7 +183,11 @@ class Supervisor(Node):
             return False
         if self.truth_wait_since is None:
             self.truth_wait_since = now
-        return now - self.truth_wait_since < TRUTH_WAIT_S
+        if now - self.truth_wait_since < TRUTH_WAIT_S:
+            return True
+        self.warn(f"no /sim/truth for the last judged period {j.traces['period'][-1]} within {TRUTH_WAIT_S} s "
+                  f"(heard {len(j.truth)}, the last for period {max(j.truth)}): the summary has NaN there")
+        return False
 
     def finish(self, verdict: control.Verdict) -> None:
         """Writes the summary (once), prints it and ends the node with the verdict's exit code."""
