@@ -2,8 +2,12 @@
 
 An entry's key is a SHA-256 over everything its result depends on (the data's bytes, the
 parameters, the library and code versions the caller names), so a change of any of them is a
-different key: nothing is ever invalidated, a stale entry is simply never asked for again. The
-cache is on only where a directory is given, by `use(directory)` around a run (`slip reproduce`
+different key: nothing is ever invalidated, a stale entry is simply never asked for again. So the
+cache is bounded: at the end of each `use` block the least recently used entries (a hit renews an
+entry) are removed until it holds at most SLIP_CACHE_MAX_GB (default 8; one full `slip reproduce
+all --joint` stored about 4 GB). A result that cannot be stored (a full disk) is used all the same,
+with one warning: the cache only saves time, it never fails a run.
+The cache is on only where a directory is given, by `use(directory)` around a run (`slip reproduce`
 uses runs/cache, and WORK/cache on the quick budget) or SLIP_CACHE_DIR in the environment; code
 that runs without one (tests, library calls) computes everything. `rm -rf runs/cache` empties it.
 """
@@ -13,14 +17,21 @@ import hashlib
 import json
 import os
 import pickle
+import sys
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Callable, TypeVar
 
 import numpy as np
 
+from .errors import UsageError
+from .paths import output_error, written_atomically
+
 T = TypeVar("T")
 ENV = "SLIP_CACHE_DIR"
+MAX_GB_ENV = "SLIP_CACHE_MAX_GB"
+DEFAULT_MAX_GB = 8.0
+_unstored: set[str] = set()      # kinds whose failed store was reported (one warning each)
 
 
 def root() -> Path | None:
@@ -51,8 +62,54 @@ def use(directory: Path | None):
     if directory is None:
         yield
         return
-    with _setting(str(directory)):
-        yield
+    limit = max_bytes()         # a bad limit is refused before the run, not after it
+    try:
+        with _setting(str(directory)):
+            yield
+    finally:
+        removed, freed = prune(Path(directory), limit)
+        if removed:
+            print(f"cache: removed the {removed} least recently used entries ({freed / 1e9:.2f} GB) of "
+                  f"{directory}, to keep it under {limit / 1e9:g} GB ({MAX_GB_ENV})", file=sys.stderr)
+
+
+def max_bytes() -> int:
+    """The cache's size limit: SLIP_CACHE_MAX_GB (a number of GB, >= 0), else DEFAULT_MAX_GB."""
+    text = os.environ.get(MAX_GB_ENV, "")
+    try:
+        gb = float(text) if text else DEFAULT_MAX_GB
+    except ValueError:
+        gb = -1.0
+    if not gb >= 0:         # NaN too
+        raise UsageError(f"{MAX_GB_ENV}={text!r}: give the cache's size limit in GB, a number >= 0")
+    return int(gb * 1e9)
+
+
+def prune(directory: Path, limit: int) -> tuple[int, int]:
+    """Removes the least recently used entries of the cache at `directory` (oldest modification
+    time first: a hit renews it) until it holds at most `limit` bytes; also the temporary files of
+    writers that died. Returns (entries removed, bytes freed)."""
+    entries = []
+    for path in directory.glob("*/*/*.pkl"):
+        try:
+            st = path.stat()
+        except OSError:
+            continue
+        entries.append((st.st_mtime, st.st_size, path))
+    total = sum(size for _, size, _ in entries)
+    removed = freed = 0
+    for _, size, path in sorted(entries):
+        if total <= limit:
+            break
+        try:
+            path.unlink()
+        except FileNotFoundError:
+            pass
+        except OSError:
+            continue
+        total -= size
+        removed, freed = removed + 1, freed + size
+    return removed, freed
 
 
 def off():
@@ -110,13 +167,23 @@ def cached(kind: str, key: str, compute: Callable[[], T]) -> T:
     path = base / kind / key[:2] / f"{key}.pkl"
     try:
         with open(path, "rb") as f:
-            return pickle.load(f)
+            value = pickle.load(f)
     except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError):
         pass
+    else:
+        try:
+            os.utime(path)          # used now: the last to go when the cache is pruned
+        except OSError:
+            pass
+        return value
     value = compute()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as f:
-        pickle.dump(value, f, protocol=pickle.HIGHEST_PROTOCOL)
-    os.replace(tmp, path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with written_atomically(path) as tmp, open(tmp, "wb") as f:
+            pickle.dump(value, f, protocol=pickle.HIGHEST_PROTOCOL)
+    except OSError as exc:
+        if kind not in _unstored:
+            _unstored.add(kind)
+            print(f"cache: a {kind} result was not stored ({output_error(exc)}); it is used all the same, "
+                  "only computed again next time", file=sys.stderr)
     return value

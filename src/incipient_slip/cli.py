@@ -5,7 +5,8 @@ words each registers, so adding a command never means editing another area's cod
 imports only the module of WORD (a command's modules load only when it runs: `slip topic list`
 never imports scipy); `slip`, `slip --help` and an unknown word import them all. A handler returns
 an exit code or raises `UsageError`, which `main` prints as one line on stderr (exit 2, no
-traceback).
+traceback). A full disk, in any command or its workers, is one line too (exit 1): what was being
+written, and what under runs/ is safe to delete.
 """
 from __future__ import annotations
 
@@ -16,7 +17,8 @@ import stat
 import sys
 
 from incipient_slip import extras
-from incipient_slip.errors import EXIT_INTERRUPTED, EXIT_USAGE, UsageError
+from incipient_slip.errors import EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_USAGE, UsageError
+from incipient_slip.paths import out_of_space, output_error
 
 EXIT_BROKEN_PIPE = 128 + 13    # what a shell reports for a tool ended by SIGPIPE
 
@@ -93,6 +95,12 @@ def main(argv: list[str] | None = None, modules: tuple[str, ...] = COMMAND_MODUL
             raise
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_BROKEN_PIPE
+    except OSError as exc:                 # after BrokenPipeError, one of its kind
+        if not out_of_space(exc):
+            raise
+        print(f"{_where(args)}: error: {output_error(exc)}; free some space (runs/cache and old "
+              "data sets under runs/ are safe to delete) and run it again", file=sys.stderr)
+        return EXIT_FAILURE
 
 
 if __name__ == "__main__":

@@ -1,13 +1,16 @@
-"""Where the repository's data directories are: launch files, scenes and shipped models; and
-where a run's output file goes (`prepare_output`: its folder created, writable).
+"""Where the repository's data directories are: launch files, scenes and shipped models; where a
+run's output file goes (`prepare_output`: its folder created, writable); and how an output file is
+written (`written_atomically`: whole or not at all, never a partial file left on a full disk).
 
 The project is installed editable, so the repository root is two levels above this package.
 """
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 
@@ -65,3 +68,25 @@ def output_error(exc: OSError) -> str:
     """An OSError of an output path in one line: 'No such file or directory: /proc/nope'."""
     reason = exc.strerror or str(exc)
     return f"{reason}: {exc.filename}" if exc.filename else reason
+
+
+@contextlib.contextmanager
+def written_atomically(path: str | Path) -> Iterator[Path]:
+    """Yields a temporary path beside `path` to write; when the block ends, it replaces `path`, so a
+    reader sees the old file or the whole new one. On any error (a full disk: ENOSPC) the temporary
+    file is removed, so a failed write leaves no partial file to fill the disk or be read. The
+    temporary name is hidden and keeps the suffix (np.savez appends .npz to a name without it)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+
+
+def out_of_space(exc: BaseException) -> bool:
+    """True for the OSError of a full disk or an exhausted quota."""
+    return isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT)

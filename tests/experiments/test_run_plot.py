@@ -53,6 +53,14 @@ def test_the_figure_of_a_summary_is_a_png_with_the_run_in_its_title(tmp_path, mo
     assert main(["run", "plot", str(source)]) == 0 and (tmp_path / "run.png").read_bytes().startswith(PNG_SIGNATURE)
 
 
+
+def test_an_output_without_a_suffix_says_the_file_it_wrote(tmp_path, capsys):
+    """matplotlib adds .png to such a name; the tool said 'wrote fig' of a file named fig.png."""
+    source = write(tmp_path / "run.json", judged_summary())
+    assert main(["run", "plot", str(source), "-o", str(tmp_path / "fig")]) == 0
+    assert f"wrote {tmp_path / 'fig.png'} " in capsys.readouterr().out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fig.png", "run.json"]     # and nothing else
+
 def test_the_figure_has_three_panels_with_the_limits_and_the_truth_dashed(tmp_path, monkeypatch):
     figs = []
     monkeypatch.setattr(run_plot, "save", lambda fig, path: figs.append(fig))

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from incipient_slip.paths import written_atomically
+
 SIM_LABEL = "simulated rig"     # in every figure title: these are statements about the simulator
 # how tables and figures name the methods (messages.METHODS)
 METHOD_LABELS = {"none": "no action", "vibrotactile": "vibrotactile", "e1": "E1", "e4": "E4",
@@ -19,11 +21,18 @@ def pyplot():
 
 
 def save(fig, path: Path, dpi: int = 110) -> Path:
-    """Write `fig` to `path` (creating its directory), close it and return the path."""
+    """Write `fig` to `path` (creating its directory; .png added to a name without a suffix, as
+    matplotlib would, so that the path returned is the file written), whole or not at all; close
+    it and return the path."""
     path = Path(path)
+    if not path.suffix:
+        path = path.with_name(path.name + ".png")
     path.parent.mkdir(parents=True, exist_ok=True)
     if fig.get_layout_engine() is None:     # a figure made with layout="constrained" lays itself out
         fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
-    pyplot().close(fig)
+    try:
+        with written_atomically(path) as tmp:
+            fig.savefig(tmp, dpi=dpi)
+    finally:
+        pyplot().close(fig)
     return path

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from incipient_slip.graph.bag import BagError, read_bag
+from incipient_slip.paths import written_atomically
 from incipient_slip.messages import (
     PAC_RATE_HZ, PAC_SAMPLES_PER_FRAME, PERIOD_NS, SLOW_RATE_HZ, ActuatorState, BiotacPac, BiotacSlow,
     ObjectPose, PztState, RobotState, SimTruth,
@@ -404,9 +405,8 @@ def import_recordings(src: str | Path, out: str | Path, *, spring_n_per_mm: floa
             stale.unlink()
         mine = [r for r in read if bool(r[2]["injection"]) == inj]
         for path, index, data, notes in mine:
-            tmp = where / f"series_{index:05d}.tmp.npz"
-            np.savez(tmp, **data)
-            os.replace(tmp, where / f"series_{index:05d}.npz")
+            with written_atomically(where / f"series_{index:05d}.npz") as tmp:
+                np.savez(tmp, **data)
             report.imported.append((str(path), index, notes))
         materials = list(dict.fromkeys(str(d["material"]) for _, _, d, _ in mine))
         meta = {"format": DATASET_FORMAT, "version": DATASET_VERSION, "scene": "recordings",
@@ -416,8 +416,7 @@ def import_recordings(src: str | Path, out: str | Path, *, spring_n_per_mm: floa
                 "spring_n_per_mm": sorted({n.spring_n_per_mm for *_, n in mine}),
                 "normal_force_from": sorted({n.normal_force_from for *_, n in mine}),
                 "recordings": {f"series_{i:05d}": str(p) for p, i, _, _ in mine}}
-        tmp = where / ".meta.json.tmp"
-        tmp.write_text(json.dumps(meta, indent=1))
-        os.replace(tmp, where / "meta.json")
+        with written_atomically(where / "meta.json") as tmp:
+            tmp.write_text(json.dumps(meta, indent=1))
         report.out_dirs["injection" if inj else "no_injection"] = str(where)
     return report

@@ -23,6 +23,8 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from incipient_slip.paths import written_atomically
+
 MANIFEST = "session.json"
 FORMAT = "incipient-slip-session"
 VERSION = 1
@@ -109,9 +111,8 @@ def load_manifest(where: str | Path) -> Session:
 
 def save_manifest(session: Session, where: str | Path) -> None:
     where = Path(where)
-    tmp = where / (MANIFEST + ".tmp")
-    tmp.write_text(json.dumps(session.to_plain(), indent=1))
-    os.replace(tmp, where / MANIFEST)       # whole or the previous one
+    with written_atomically(where / MANIFEST) as tmp:      # whole or the previous one
+        tmp.write_text(json.dumps(session.to_plain(), indent=1))
 
 
 def open_session(where: str | Path, planned: Session) -> Session:

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..paths import written_atomically
 from .features import FeatureSpec
 
 MODEL_FORMAT = "incipient-slip-model"
@@ -139,9 +140,8 @@ def save_model(model: Model, path: str | Path, extra_header: dict | None = None)
         arrays["centers"] = model.centers
     text = json.dumps(header, sort_keys=True, indent=1, default=_json_default)
     arrays["header"] = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez_compressed(tmp, **arrays)
-    tmp.replace(path)
+    with written_atomically(path) as tmp, open(tmp, "wb") as f:     # a file: numpy adds no .npz to it
+        np.savez_compressed(f, **arrays)
     model.header = header
     return path
 

@@ -20,9 +20,7 @@ written (checked before start, its folder created; at the end: after the verdict
 """
 from __future__ import annotations
 
-import contextlib
 import json
-import os
 import time
 from pathlib import Path
 
@@ -31,7 +29,7 @@ from incipient_slip.errors import EXIT_USAGE
 from incipient_slip.graph.params import Param, checked_output
 from incipient_slip.graph.runtime import Node, run_node
 from incipient_slip.models.labels import DEFAULT_LABEL
-from incipient_slip.paths import output_error
+from incipient_slip.paths import output_error, written_atomically
 from incipient_slip.messages import RUN_EVENT_KINDS, ActuatorState, BiotacSlow, GripCommand, ObjectPose, PztState, RobotState, RunEvent, SimTruth, SlipEstimate
 
 POSITIVE = dict(lo=1e-3)
@@ -234,14 +232,8 @@ class Supervisor(Node):
 def write_summary(path: str, summary: dict) -> None:
     """The summary as JSON at `path`, its folder created; readers never see a half-written one."""
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(f"{path}.tmp{os.getpid()}")
-    try:
+    with written_atomically(path) as tmp:
         tmp.write_text(json.dumps(summary, indent=1, allow_nan=True))
-        tmp.replace(path)
-    except OSError:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        raise
 
 
 def main(argv=None):

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..cluster import as_done
+from ..paths import written_atomically
 from . import kernels, mechanics
 from .protocols import run_collection
 from .rig import Rig, series_seed
@@ -117,10 +118,8 @@ def _worker(args) -> str:
     seed = series_seed(dataset_seed, index)
     data = simulate_series(scene, mats[index % len(mats)], seed, steps, [v for v, _ in views])
     for d, where in zip([data] if not views else data, [out_dir] + [w for _, w in views]):
-        path = Path(where) / f"series_{index:05d}.npz"
-        tmp = path.with_name(path.stem + ".tmp.npz")
-        np.savez(tmp, **d)
-        os.replace(tmp, path)
+        with written_atomically(Path(where) / f"series_{index:05d}.npz") as tmp:
+            np.savez(tmp, **d)
     return str(Path(out_dir) / f"series_{index:05d}.npz")
 
 
@@ -215,6 +214,5 @@ def _write_meta(scene: Scene, n_series: int, seed: int, out: Path, mats: tuple, 
         "series_material_rule": "materials[i % len(materials)]",
         "series_seed_rule": "SeedSequence(seed, spawn_key=(i,)) -> int63",
     }
-    tmp = out / ".meta.json.tmp"
-    tmp.write_text(json.dumps(meta, indent=1))
-    os.replace(tmp, out / "meta.json")          # whole or absent: its presence says "finished"
+    with written_atomically(out / "meta.json") as tmp:        # whole or absent: its presence says "finished"
+        tmp.write_text(json.dumps(meta, indent=1))
