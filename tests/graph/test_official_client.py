@@ -108,7 +108,7 @@ def test_the_official_client_connects_and_every_schema_is_valid_under_ajv_strict
     assert [m["payload"] for m in got] == [json.loads(json.dumps(to_export_json(m))) for m in sent], stderr
     assert [int(m["logTime"]) for m in got] == [m.stamp_ns for m in sent]
     assert not [m["errors"] for m in got if m["errors"]]
-    assert client.events("error") == [] and client.events("close")
+    assert client.events("error") == [] and [e["code"] for e in client.events("close")] == [1005]   # a close frame (no status), never 1006
 
 
 WATCHED = ("/slip/estimate", "/grip/command", "/robot/state", "/object/pose")
@@ -145,6 +145,7 @@ def test_the_official_client_receives_every_message_of_a_lock_step_run_on_one_ti
             break
 
     assert client.events("error") == [], stderr
+    assert [e["code"] for e in client.events("close")] == [1005], stderr     # the server's close frame, not 1006
     assert {e["topic"]: e["error"] for e in client.events("schema") if e["error"]} == {}
     summary = json.loads((tmp_path / "summary.json").read_text())
     end_ns = (summary["steps"] + 2) * PERIOD_NS

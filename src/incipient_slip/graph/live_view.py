@@ -52,6 +52,7 @@ PAC_VIEW_HZ = 10.0          # P_AC frames a second on the BiotacPac channel (see
 AUDIO_BLOCK_FRAMES = 10     # P_AC frames per RawAudio message: 100 ms
 DRAIN_QUIET_S = 0.3         # `drain`: no byte to any client this long means the queues are empty
 DRAIN_TIMEOUT_S = 5.0
+CLOSE_GRACE_S = 1.0         # `close`: longest wait for the clients to get the server's close frames
 _FRAME_NS = PAC_SAMPLES_PER_FRAME * 1_000_000_000 // PAC_RATE_HZ
 
 
@@ -152,8 +153,15 @@ class LiveView:
         return self.front.drain(quiet_s, timeout_s)
 
     def close(self) -> None:
-        self.front.close()
-        self.server.stop()
+        """Stops the server, which sends each client a WebSocket close frame that the front relays
+        before the connection ends (closing the front first cut the connections, and the official
+        client reported close code 1006, abnormal closure). The server stops in a thread of its
+        own: to a client that reads nothing it cannot send its close frame, and the stop waits;
+        after CLOSE_GRACE_S the front cuts what is left, and then it returns."""
+        stopping = threading.Thread(target=self.server.stop, name="live-view-stop", daemon=True)
+        stopping.start()
+        self.front.close(grace_s=CLOSE_GRACE_S)
+        stopping.join(CLOSE_GRACE_S)
 
     def _open(self, topic: str, msg_type) -> object:
         fox = self._fox

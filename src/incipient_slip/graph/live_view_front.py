@@ -68,8 +68,16 @@ class SubprotocolFront:
                 return False
             time.sleep(min(quiet_s, 0.05))
 
-    def close(self) -> None:
+    def close(self, grace_s: float = 0.0) -> None:
+        """Stops accepting; waits up to `grace_s` for the relayed connections to end on their own
+        (the server's close frames reaching the clients), then cuts the rest."""
         self._closed = True
+        deadline = time.monotonic() + grace_s
+        while time.monotonic() < deadline:
+            with self._lock:
+                if not self._sockets:
+                    break
+            time.sleep(0.01)
         with self._lock:
             sockets, self._sockets = list(self._sockets), set()
         for sock in [self._listener, *sockets]:
