@@ -28,8 +28,9 @@ def test_list_names_every_experiment_and_its_page(capsys):
 ])
 def test_bad_input_is_one_line_on_stderr_and_exit_2(argv, needle, tmp_path, capsys):
     assert main(argv + ["--out", str(tmp_path)]) == 2
-    err = capsys.readouterr().err
+    out, err = capsys.readouterr()
     assert needle in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert "PREVIEW" not in out          # checked before the banner: nothing was started
 
 
 def test_reproduce_without_a_name_asks_for_one(capsys):

@@ -10,7 +10,8 @@ Each experiment module defines
   results alone (so `--render-only` can redo them from results.json). The page's prose is
   hand-written; `docs.write_blocks` puts each block between its markers;
 * optionally `RESULTS` (a file name in docs/figures/ that keeps the page's results in the
-  repository) and `SEED` (its default seed, when not 0).
+  repository), `SEED` (its default seed, when not 0) and `check(settings)`, which raises
+  UsageError for bad options before anything is printed or started.
 
 An experiment imports no other experiment (tests/repo/test_import_direction.py): what two share
 is a module here that is not one (settings, plots, runner, datasets, closed_loop, mechanics_fit).

@@ -246,6 +246,11 @@ def target_rows(mech: dict, vib: dict) -> list[dict]:
     ]
 
 
+def check(settings) -> None:
+    """Checks --scene and --set before anything runs (`_scene_to_fit`)."""
+    _scene_to_fit(settings.option("scene", "paper"), parse_overrides(settings.option("overrides", [])))
+
+
 def run(settings) -> dict:
     """Fit stage 1 and stage 2 and return the fitted values, the target table and provenance."""
     from incipient_slip.sim.scene import PARAMS_DIR

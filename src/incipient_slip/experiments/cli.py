@@ -17,7 +17,7 @@ from pathlib import Path
 
 from incipient_slip import cache
 from incipient_slip.errors import UsageError
-from incipient_slip.paths import docs_dir, runs_dir
+from incipient_slip.paths import docs_dir, runs_dir, written_atomically
 
 from . import EXPERIMENTS, load
 from .docs import DocsError, write_blocks
@@ -100,7 +100,8 @@ def settings_from_args(args: argparse.Namespace, module) -> Settings:
 def save_results(results: dict, path: Path) -> None:
     """Write `results` as JSON (numpy values as plain numbers, NaN allowed)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(results, indent=1, default=_plain, allow_nan=True) + "\n")
+    with written_atomically(path) as tmp:
+        tmp.write_text(json.dumps(results, indent=1, default=_plain, allow_nan=True) + "\n")
 
 
 def _plain(value):
@@ -126,6 +127,8 @@ def cmd_reproduce(args) -> int:
     module = load(args.experiment)
     settings = settings_from_args(args, module)
     t0, load0 = time.monotonic(), os.getloadavg()[0]
+    if hasattr(module, "check") and not args.render_only:     # bad options: one line, before any banner
+        module.check(settings)
     if settings.quick and not args.render_only:     # what runs: the plan's own words where there is one
         what = module.plan(settings).describe() if hasattr(module, "plan") else module.QUICK
         print(f"slip reproduce {args.experiment} --quick: a PREVIEW, not the docs' result: {what}", flush=True)

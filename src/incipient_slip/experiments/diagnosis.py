@@ -130,15 +130,20 @@ def force_step(material: str, seed: int, models: dict, ft_slip: float, target_tr
     return rows
 
 
+def check(settings: Settings) -> list[int]:
+    """Return the rig seeds of --seeds; UsageError if they are not integers."""
+    try:
+        return [int(s) for s in str(settings.option("seeds", settings.pick(quick="0", full="0,5"))).split(",")]
+    except ValueError:
+        raise UsageError(f"--seeds takes integers separated by commas, got {settings.option('seeds')!r}") from None
+
+
 def run(settings: Settings) -> dict:
     """Run the loops, the oracle and the F_N step test; write the figures and per-period records."""
     from incipient_slip.models.estimator_core import default_model_path, limit_blas_threads, load_model
 
     from .datasets import study_datasets
-    try:
-        seeds = [int(s) for s in str(settings.option("seeds", settings.pick(quick="0", full="0,5"))).split(",")]
-    except ValueError:
-        raise UsageError(f"--seeds takes integers separated by commas, got {settings.option('seeds')!r}") from None
+    seeds = check(settings)
     material = settings.option("material", "pla")
     steps = control.MAX_STEPS      # quick too: the loops end as the full ones do
     limit_blas_threads(1)

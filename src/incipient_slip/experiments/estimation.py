@@ -36,16 +36,22 @@ def add_arguments(parser) -> None:
                         "WORK/data on the quick budget)")
 
 
+def check(settings: Settings) -> int:
+    """Return the number of series per data set (--series); UsageError below one per material."""
+    from incipient_slip.errors import UsageError
+    n = settings.option("series", settings.pick(quick=10, full=500))
+    if n < 10:
+        raise UsageError(f"--series must be >= 10 (one held-out series per material), got {n}")
+    return n
+
+
 def run(settings: Settings) -> dict:
     """Train and score the six methods under both label policies; write the figures."""
-    from incipient_slip.errors import UsageError
     from incipient_slip.models.pipeline import load_all_windows, run_study
 
     from .datasets import study_datasets
     t0 = time.perf_counter()
-    n = settings.option("series", settings.pick(quick=10, full=500))
-    if n < 10:
-        raise UsageError(f"--series must be >= 10 (one held-out series per material), got {n}")
+    n = check(settings)
     steps = 450    # the paper's; on simulator v2 the first gross slip of a collection series comes at period ~190-400
     max_train = settings.option("max_train", settings.pick(quick=1000, full=8000))
     grid_max = settings.pick(quick=600, full=2000)

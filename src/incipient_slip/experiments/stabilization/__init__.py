@@ -74,6 +74,11 @@ def sweep_targets(settings: Settings) -> tuple[float, ...]:
     return settings.pick(quick=(0.3, 0.7), full=(0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8))
 
 
+def check(settings: Settings) -> None:
+    """Checks the options before anything runs (`options`)."""
+    options(settings)
+
+
 def options(settings: Settings) -> dict:
     """Return the run options (runs, steps, methods, s_d, k, gains, ...) checked; UsageError if bad."""
     o = settings.options
