@@ -87,8 +87,9 @@ def max_bytes() -> int:
 
 def prune(directory: Path, limit: int) -> tuple[int, int]:
     """Removes the least recently used entries of the cache at `directory` (oldest modification
-    time first: a hit renews it) until it holds at most `limit` bytes; also the temporary files of
-    writers that died. Returns (entries removed, bytes freed)."""
+    time first: a hit renews it) until it holds at most `limit` bytes; the hidden temporary file a
+    killed writer left counts as an entry. Another run's store that loses its file to this only
+    warns (`cached`). Returns (entries removed, bytes freed)."""
     entries = []
     for path in directory.glob("*/*/*.pkl"):
         try:
